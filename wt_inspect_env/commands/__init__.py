@@ -1,0 +1,1 @@
+"""Command-line subcommands of ``wt-inspect`` that need only the environment package."""
