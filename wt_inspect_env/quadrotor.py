@@ -11,7 +11,7 @@ above, producing a clockwise reaction torque -c_tau f on the body about +z).
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -36,6 +36,8 @@ class QuadrotorParams:
     rotor_drag: tuple[float, float, float] = (2.9, 2.9, 0.5)  # linear drag, body axes [N/(m/s)]
     body_drag_area: tuple[float, float, float] = (0.05, 0.05, 0.10)  # C_d * A per body axis [m^2]
     rotor_spin: tuple[int, int, int, int] = (1, -1, 1, -1)
+    prop_radius: float = 0.165           # 13-inch propellers; sizes the collision box [m]
+    frame_height: float = 0.20           # collision box height incl. landing gear [m]
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -50,7 +52,16 @@ class QuadrotorParams:
         if self.min_rotor_thrust >= self.max_rotor_thrust:
             raise ValueError(
                 f"min_rotor_thrust must be below max_rotor_thrust, got {self.min_rotor_thrust!r}")
-        check_finite("torque_coeff", self.torque_coeff)
+        # A negative ratio would silently flip the spin convention; spin lives in rotor_spin.
+        check_positive("torque_coeff", self.torque_coeff, allow_zero=True)
+        if len(self.rotor_spin) != 4 or any(s not in (1, -1) for s in self.rotor_spin):
+            raise ValueError(f"rotor_spin must be 4 entries of +1/-1, got {self.rotor_spin!r}")
+        if sum(self.rotor_spin) != 0:
+            raise ValueError(
+                f"rotor_spin must have two rotors each way (else yaw is uncontrollable at hover), "
+                f"got {self.rotor_spin!r}")
+        check_positive("prop_radius", self.prop_radius)
+        check_positive("frame_height", self.frame_height)
         check_positive("motor_time_constant", self.motor_time_constant, allow_zero=True)
         for fname in ("rotor_drag", "body_drag_area"):
             vals = getattr(self, fname)
@@ -90,6 +101,12 @@ class QuadrotorParams:
             -spin * self.torque_coeff,       # reaction torque of a CCW (+1) rotor is clockwise
         ])
 
+    @property
+    def collision_half_extents(self) -> tuple[float, float, float]:
+        """Half sizes of the box that encloses frame and propeller disks (collision shape)."""
+        half = self.arm_length * np.sqrt(0.5) + self.prop_radius
+        return (float(half), float(half), 0.5 * self.frame_height)
+
     def replace(self, **changes) -> "QuadrotorParams":
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -104,7 +121,8 @@ PRESETS: dict[str, QuadrotorParams] = {
             "props with 20 N peak thrust each (thrust/weight 2.3, above the paper's 2 m g bound); "
             "torque/thrust ratio 0.016 m and motor time constant 0.04 s typical of 13-inch props; "
             "linear rotor drag 2.9 N/(m/s) horizontally = the authors' Gazebo model; "
-            "C_d A of 0.05 m^2 frontal, 0.1 m^2 from above (estimated)."
+            "C_d A of 0.05 m^2 frontal, 0.1 m^2 from above (estimated); collision box from the "
+            "wheelbase plus 13-inch prop disks, 0.2 m tall (estimated)."
         ),
     ),
     "lab250": QuadrotorParams(
@@ -117,11 +135,14 @@ PRESETS: dict[str, QuadrotorParams] = {
         motor_time_constant=0.02,
         rotor_drag=(0.55, 0.55, 0.1),
         body_drag_area=(0.01, 0.01, 0.02),
+        prop_radius=0.0635,
+        frame_height=0.08,
         source=(
             "The paper's lab quadrotor: 1.09 kg, 250 mm motor-to-motor diagonal -> 0.125 m arm "
             "(paper, Experimental Setup); inertia from a 0.6 kg 0.1 m central box plus 4 x 0.05 kg "
             "motors (estimated); 7 N per rotor (5-inch props, thrust/weight 2.6); torque/thrust "
-            "0.011 m, motor lag 0.02 s, drag scaled by mass from the Matrice figures (estimated)."
+            "0.011 m, motor lag 0.02 s, drag scaled by mass from the Matrice figures, 5-inch prop "
+            "disks and 0.08 m frame height for the collision box (estimated)."
         ),
     ),
 }

@@ -1,0 +1,477 @@
+"""PyBullet quadrotor simulator commanded by body rates and collective thrust (PX4 offboard style).
+
+One :class:`QuadrotorSim` owns one PyBullet ``DIRECT`` client: the drone (a box with the mass and
+inertia of :class:`~wt_inspect_env.quadrotor.QuadrotorParams`), the ground plane and, optionally,
+the turbine's collision mesh (the same trimesh the planner uses, as a static concave triangle mesh).
+
+Each :meth:`QuadrotorSim.step` holds a command ``[p, q, r, T]`` (body rates [rad/s], collective
+thrust [N]) for ``1 / ctrl_hz`` and runs ``physics_hz / ctrl_hz`` physics sub-steps. In each:
+
+1. the PX4-like rate PID (:mod:`~wt_inspect_env.rate_control`) turns the rate error into body
+   torques, the mixer turns thrust + torques into four rotor thrusts within their limits;
+2. the rotors follow their commands through a first-order lag (exact discretisation);
+3. the rotor thrusts act along body +z at the rotor positions, the yaw torque is
+   ``-spin * torque_coeff * f`` per rotor (the wrench is ``params.mixer @ f``);
+4. wind acts through relative-airspeed drag in body axes: ``-D v_rel - 1/2 rho CdA |v_rel| v_rel``
+   with ``v_rel = R^T (v - v_wind)``; the wind is evaluated once per control step at the drone;
+5. PyBullet integrates the rigid body (default damping off so it matches the model) and contacts.
+
+By default the rotor forces are applied as their resultant: one force at the centre of mass plus
+one torque (identical rigid-body dynamics, fewer PyBullet calls); ``SimConfig(per_rotor_forces=True)``
+applies the four forces at the rotor positions instead, and a test checks both agree.
+
+``SimConfig(rate_loop=False)`` bypasses the rate loop: the commanded body rates are imposed
+directly on the body at every sub-step and the collective thrust acts at the centre of mass. That is
+exactly the paper's model (:mod:`~wt_inspect_env.dynamics`), which the agreement test relies on.
+"""
+from __future__ import annotations
+
+import copy
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pybullet as p
+
+from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
+from .rate_control import Mixer, RateController, RateGains
+from .validation import check_array, check_positive
+from .wind import WindField, make_wind
+
+try:  # trimesh is a core dependency; imported lazily-safe for type checks only
+    import trimesh
+except ImportError:  # pragma: no cover
+    trimesh = None
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Simulator options.
+
+    ctrl_hz: command rate [Hz]; physics_hz: physics and rate-loop rate [Hz], a multiple of ctrl_hz.
+    motor_lag / drag / rate_loop / ground switch those effects (the model-agreement test turns the
+    first three off). ``rate_gains`` default to :meth:`RateGains.for_params` of the airframe.
+    ``ground_height``: z of the ground plane [m].
+    """
+
+    ctrl_hz: float = 100.0
+    physics_hz: float = 400.0
+    motor_lag: bool = True
+    drag: bool = True
+    rate_loop: bool = True
+    ground: bool = True
+    ground_height: float = 0.0
+    per_rotor_forces: bool = False
+    rate_gains: RateGains | None = None
+
+    def __post_init__(self) -> None:
+        check_positive("ctrl_hz", self.ctrl_hz)
+        check_positive("physics_hz", self.physics_hz)
+        ratio = self.physics_hz / self.ctrl_hz
+        if ratio < 1 or abs(ratio - round(ratio)) > 1e-9:
+            raise ValueError(f"physics_hz must be a positive multiple of ctrl_hz, got "
+                             f"physics_hz={self.physics_hz!r}, ctrl_hz={self.ctrl_hz!r}")
+        for name in ("motor_lag", "drag", "rate_loop", "ground", "per_rotor_forces"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
+        if not math.isfinite(self.ground_height):
+            raise ValueError(f"ground_height must be finite, got {self.ground_height!r}")
+        if self.rate_gains is not None and not isinstance(self.rate_gains, RateGains):
+            raise ValueError(f"rate_gains must be a RateGains, got {self.rate_gains!r}")
+
+    @property
+    def substeps(self) -> int:
+        return int(round(self.physics_hz / self.ctrl_hz))
+
+
+def _mesh_arrays(mesh: Any) -> tuple[list, list]:
+    """Validated (vertices, flat indices) lists from a trimesh-like mesh."""
+    verts = getattr(mesh, "vertices", None)
+    faces = getattr(mesh, "faces", None)
+    if verts is None or faces is None:
+        raise ValueError(f"obstacles must be a trimesh.Trimesh (vertices and faces), got {mesh!r}")
+    v = check_array("obstacles.vertices", verts, (None, 3))
+    f = np.asarray(faces)
+    if f.ndim != 2 or f.shape[1] != 3 or f.shape[0] == 0:
+        raise ValueError(f"obstacles.faces must have shape (M, 3) with M > 0, got shape {f.shape}")
+    if not np.issubdtype(f.dtype, np.integer) or f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"obstacles.faces must index the {len(v)} vertices, got range "
+                         f"[{f.min()}, {f.max()}]")
+    return v.tolist(), f.astype(np.int64).ravel().tolist()
+
+
+class QuadrotorSim:
+    """A PyBullet quadrotor with a PX4-like rate loop, motor lag, drag and wind (see module doc)."""
+
+    def __init__(self, params: QuadrotorParams | str | None = None,
+                 config: SimConfig | None = None, wind: WindField | None = None,
+                 obstacles: Any = None) -> None:
+        if params is None:
+            params = get_preset("matrice100")
+        elif isinstance(params, str):
+            params = get_preset(params)
+        if not isinstance(params, QuadrotorParams):
+            raise ValueError(f"params must be a QuadrotorParams or preset name, got {params!r}")
+        config = SimConfig() if config is None else config
+        if not isinstance(config, SimConfig):
+            raise ValueError(f"config must be a SimConfig, got {config!r}")
+        self.params = params
+        self.config = config
+        # A private copy: two simulators never share a random wind process.
+        self.wind: WindField | None = None if wind is None else copy.deepcopy(make_wind(wind))
+        self._client = -1
+        self._rng: np.random.Generator | None = None
+
+        self.dt = 1.0 / config.ctrl_hz
+        self.physics_dt = 1.0 / config.physics_hz
+        self._n_sub = config.substeps
+        gains = config.rate_gains or RateGains.for_params(params)
+        self.rate_gains = gains
+        self.mixer = Mixer(params)
+        self.rate_controller = RateController(gains, params.inertia, self.physics_dt)
+        tau = params.motor_time_constant
+        self._alpha = (1.0 - math.exp(-self.physics_dt / tau)) if (config.motor_lag and tau > 0) else 1.0
+        A = self.mixer.A
+        self._A_tau = tuple(tuple(float(x) for x in A[row]) for row in (1, 2, 3))
+        self._rotor_pos = [tuple(float(c) for c in r) for r in params.rotor_positions]
+        self._lin_drag = tuple(float(x) for x in params.rotor_drag) if config.drag else (0.0,) * 3
+        self._quad_drag = (tuple(0.5 * AIR_DENSITY * float(x) for x in params.body_drag_area)
+                           if config.drag else (0.0,) * 3)
+        self._has_drag = config.drag and (any(self._lin_drag) or any(self._quad_drag))
+
+        cid = p.connect(p.DIRECT)
+        if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients
+            raise RuntimeError("PyBullet could not create a DIRECT client")
+        self._client = cid
+        p.resetSimulation(physicsClientId=cid)
+        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
+        p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
+                                    deterministicOverlappingPairs=1, physicsClientId=cid)
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
+                                       physicsClientId=cid)
+        self._body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape,
+                                       basePosition=[0, 0, 1], physicsClientId=cid)
+        p.changeDynamics(self._body, -1, linearDamping=0.0, angularDamping=0.0,
+                         localInertiaDiagonal=list(params.inertia),
+                         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
+                         physicsClientId=cid)
+        self._ground = -1
+        if config.ground:
+            plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
+            self._ground = p.createMultiBody(0.0, plane, basePosition=[0, 0, config.ground_height],
+                                             physicsClientId=cid)
+        self._obstacle = -1
+        self._obstacle_shape = -1
+        if obstacles is not None:
+            self.set_obstacles(obstacles)
+        self._last_wind = np.zeros(3)
+        self._contacts: list[dict] = []
+        self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
+
+    # ------------------------------------------------------------------ lifecycle
+    @property
+    def client(self) -> int:
+        """The PyBullet client id (e.g. for ``p.rayTestBatch(..., physicsClientId=sim.client)``)."""
+        self._check_open()
+        return self._client
+
+    @property
+    def body_id(self) -> int:
+        return self._body
+
+    def _check_open(self) -> None:
+        if self._client < 0:
+            raise RuntimeError("this QuadrotorSim is closed")
+
+    def close(self) -> None:
+        """Disconnect the PyBullet client (idempotent)."""
+        if self._client >= 0:
+            try:
+                p.disconnect(physicsClientId=self._client)
+            finally:
+                self._client = -1
+
+    def __enter__(self) -> "QuadrotorSim":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        try:
+            self.close()
+        except Exception:  # pragma: no cover - interpreter shutdown
+            pass
+
+    def set_obstacles(self, mesh: Any) -> None:
+        """Replace the static obstacle (turbine) collision mesh; ``None`` removes it."""
+        self._check_open()
+        cid = self._client
+        if mesh is not None:
+            verts, idx = _mesh_arrays(mesh)
+        if self._obstacle >= 0:
+            p.removeBody(self._obstacle, physicsClientId=cid)
+            p.removeCollisionShape(self._obstacle_shape, physicsClientId=cid)
+            self._obstacle = self._obstacle_shape = -1
+        if mesh is None:
+            return
+        shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
+                                       flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
+        if shape < 0:  # pragma: no cover
+            raise ValueError("PyBullet rejected the obstacle mesh")
+        self._obstacle_shape = shape
+        self._obstacle = p.createMultiBody(0.0, shape, physicsClientId=cid)
+
+    @property
+    def obstacle_id(self) -> int:
+        """PyBullet body id of the obstacle mesh (-1 if none)."""
+        return self._obstacle
+
+    @property
+    def ground_id(self) -> int:
+        return self._ground
+
+    # ------------------------------------------------------------------ reset / state
+    def reset(self, state: Any, body_rates: Any = None, seed: int | None = None) -> None:
+        """Place the drone at ``state`` = [p, v_body, q] (model convention) and restart time.
+
+        ``body_rates`` (3,) default to zero. The rotors start at hover thrust (m g / 4 each) and the
+        rate-loop integrators at zero. ``seed`` reseeds the simulator's Generator, from which the
+        wind field draws a fresh seed at every reset (so ``seed=None`` continues the stream).
+        """
+        self._check_open()
+        x = check_array("state", state, (10,))
+        q = x[6:10]
+        nq = float(np.linalg.norm(q))
+        if abs(nq - 1.0) > 1e-3:
+            raise ValueError(f"state quaternion must have unit norm, got norm {nq:.6g} ({q.tolist()})")
+        q = q / nq
+        w_b = np.zeros(3) if body_rates is None else check_array("body_rates", body_rates, (3,))
+        if seed is not None or self._rng is None:
+            if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                                     or seed < 0):
+                raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+            self._rng = np.random.default_rng(seed)
+        if self.wind is not None:
+            self.wind.reset(int(self._rng.integers(2**63 - 1)))
+        R = np.array(p.getMatrixFromQuaternion(q.tolist())).reshape(3, 3)
+        cid = self._client
+        p.resetBasePositionAndOrientation(self._body, x[0:3].tolist(), q.tolist(),
+                                          physicsClientId=cid)
+        p.resetBaseVelocity(self._body, (R @ x[3:6]).tolist(), (R @ w_b).tolist(),
+                            physicsClientId=cid)
+        self._steps = 0
+        self.rate_controller.reset(w_b.tolist())
+        self._f = [self.params.weight / 4.0] * 4
+        self._thrust = self.params.weight          # rate_loop=False: lagged collective
+        self._contacts = []
+        self._in_collision = False
+        self._fetch()
+        self._last_wind = self._wind_at(0.0)
+        self._const_wind = self.wind is None or self.wind.is_constant
+
+    def _fetch(self) -> None:
+        cid = self._client
+        self._pos, self._quat = p.getBasePositionAndOrientation(self._body, physicsClientId=cid)
+        self._vel, self._omega = p.getBaseVelocity(self._body, physicsClientId=cid)
+
+    def _wind_at(self, t: float) -> np.ndarray:
+        if self.wind is None:
+            return np.zeros(3)
+        v = self.wind(t, np.array([self._pos]))
+        return v[0]
+
+    @property
+    def time(self) -> float:
+        """Simulated time since the last reset [s]."""
+        return self._steps * self.dt
+
+    @property
+    def state(self) -> np.ndarray:
+        """(10,) [position, body velocity, quaternion (x, y, z, w)], the model's convention."""
+        R = np.array(p.getMatrixFromQuaternion(self._quat)).reshape(3, 3)
+        return np.concatenate([self._pos, R.T @ np.asarray(self._vel), self._quat])
+
+    @property
+    def body_rates(self) -> np.ndarray:
+        """(3,) body angular velocity (p, q, r) [rad/s]."""
+        R = np.array(p.getMatrixFromQuaternion(self._quat)).reshape(3, 3)
+        return R.T @ np.asarray(self._omega)
+
+    @property
+    def world_velocity(self) -> np.ndarray:
+        return np.asarray(self._vel, float)
+
+    @property
+    def rotor_thrusts(self) -> np.ndarray:
+        """(4,) current rotor thrusts [N] (after motor lag and saturation)."""
+        return np.array(self._f)
+
+    @property
+    def wind_velocity(self) -> np.ndarray:
+        """(3,) wind velocity at the drone used during the last step [m/s]."""
+        return self._last_wind.copy()
+
+    @property
+    def in_collision(self) -> bool:
+        """Whether the drone touched the obstacles or the ground during the last step."""
+        return self._in_collision
+
+    @property
+    def contacts(self) -> list[dict]:
+        """Contact points of the last step's last touching sub-step: dicts with ``other``
+        ('ground' or 'obstacle'), ``position`` (on the other body), ``normal`` (from the other body
+        towards the drone), ``distance`` (negative = penetration [m]), ``normal_force`` [N]."""
+        return [dict(c) for c in self._contacts]
+
+    # ------------------------------------------------------------------ stepping
+    def step(self, command: Any) -> None:
+        """Hold ``command`` = [p, q, r, T] for one control period (1 / ctrl_hz)."""
+        self._check_open()
+        try:
+            cmd = np.asarray(command, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise ValueError(f"command must be a numeric array [p, q, r, T], got {command!r}") from None
+        if cmd.shape != (4,):
+            raise ValueError(f"command must have shape (4,) [p, q, r, T], got shape {cmd.shape}")
+        pc, qc, rc, T = cmd.tolist()
+        if not (math.isfinite(pc) and math.isfinite(qc) and math.isfinite(rc) and math.isfinite(T)):
+            raise ValueError(f"command must be finite, got {cmd.tolist()}")
+        if T < 0:
+            raise ValueError(f"command thrust T must be >= 0 N (rotors cannot push down), got {T!r}")
+
+        if not self._const_wind:
+            self._last_wind = self._wind_at(self._steps * self.dt)
+        wx, wy, wz = self._last_wind.tolist()
+        if self.config.rate_loop:
+            self._run_rate_loop(pc, qc, rc, T, wx, wy, wz)
+        else:
+            self._run_imposed_rates(pc, qc, rc, T, wx, wy, wz)
+        self._steps += 1
+
+    def _drag_body(self, R, vx, vy, vz, wx, wy, wz) -> tuple[float, float, float]:
+        """Drag force in body axes for world velocity v and wind w (R row-major body-to-world)."""
+        ax, ay, az = vx - wx, vy - wy, vz - wz
+        # v_rel in body axes = R^T (v - w)
+        bx = R[0] * ax + R[3] * ay + R[6] * az
+        by = R[1] * ax + R[4] * ay + R[7] * az
+        bz = R[2] * ax + R[5] * ay + R[8] * az
+        sp = math.sqrt(bx * bx + by * by + bz * bz)
+        dl, dq = self._lin_drag, self._quad_drag
+        return (-(dl[0] + dq[0] * sp) * bx, -(dl[1] + dq[1] * sp) * by, -(dl[2] + dq[2] * sp) * bz)
+
+    def _run_rate_loop(self, pc, qc, rc, T, wx, wy, wz) -> None:
+        cid, body = self._client, self._body
+        ctrl_update = self.rate_controller.update
+        mixer = self.mixer
+        mix = mixer.mix
+        alpha = self._alpha
+        (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
+        has_drag = self._has_drag
+        per_rotor = self.config.per_rotor_forces
+        rotor_pos = self._rotor_pos
+        applyForce, applyTorque = p.applyExternalForce, p.applyExternalTorque
+        stepSim, getPose, getVel = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
+        getMat, getContacts = p.getMatrixFromQuaternion, p.getContactPoints
+        LINK = p.LINK_FRAME
+        zero = (0.0, 0.0, 0.0)
+        f0, f1, f2, f3 = self._f
+        quat, vel, omega = self._quat, self._vel, self._omega
+        touched = False
+        for _ in range(self._n_sub):
+            R = getMat(quat)
+            ox, oy, oz = omega
+            pm = R[0] * ox + R[3] * oy + R[6] * oz
+            qm = R[1] * ox + R[4] * oy + R[7] * oz
+            rm = R[2] * ox + R[5] * oy + R[8] * oz
+            tx, ty, tz = ctrl_update(pc, qc, rc, pm, qm, rm, mixer.saturation)
+            c0, c1, c2, c3 = mix(T, tx, ty, tz)
+            f0 += alpha * (c0 - f0)
+            f1 += alpha * (c1 - f1)
+            f2 += alpha * (c2 - f2)
+            f3 += alpha * (c3 - f3)
+            if has_drag:
+                dx, dy, dz = self._drag_body(R, vel[0], vel[1], vel[2], wx, wy, wz)
+            else:
+                dx = dy = dz = 0.0
+            if per_rotor:
+                for pos_i, f_i in zip(rotor_pos, (f0, f1, f2, f3)):
+                    applyForce(body, -1, (0.0, 0.0, f_i), pos_i, LINK, physicsClientId=cid)
+                applyForce(body, -1, (dx, dy, dz), zero, LINK, physicsClientId=cid)
+                applyTorque(body, -1, (0.0, 0.0, a30 * f0 + a31 * f1 + a32 * f2 + a33 * f3),
+                            LINK, physicsClientId=cid)
+            else:
+                applyForce(body, -1, (dx, dy, dz + f0 + f1 + f2 + f3), zero, LINK,
+                           physicsClientId=cid)
+                applyTorque(body, -1, (a10 * f0 + a11 * f1 + a12 * f2 + a13 * f3,
+                                       a20 * f0 + a21 * f1 + a22 * f2 + a23 * f3,
+                                       a30 * f0 + a31 * f1 + a32 * f2 + a33 * f3),
+                            LINK, physicsClientId=cid)
+            stepSim(physicsClientId=cid)
+            quat = getPose(body, physicsClientId=cid)[1]
+            vel, omega = getVel(body, physicsClientId=cid)
+            cps = getContacts(bodyA=body, physicsClientId=cid)
+            if cps:
+                touched |= self._record_contacts(cps)
+        self._f = [f0, f1, f2, f3]
+        self._pos = getPose(body, physicsClientId=cid)[0]
+        self._quat, self._vel, self._omega = quat, vel, omega
+        self._in_collision = touched
+        if not touched:
+            self._contacts = []
+
+    def _run_imposed_rates(self, pc, qc, rc, T, wx, wy, wz) -> None:
+        cid, body = self._client, self._body
+        alpha = self._alpha
+        Jx, Jy, Jz = self.params.inertia
+        touched = False
+        for _ in range(self._n_sub):
+            R = p.getMatrixFromQuaternion(self._quat)
+            # Impose the commanded body rates (in world axes for PyBullet) ...
+            om = (R[0] * pc + R[1] * qc + R[2] * rc,
+                  R[3] * pc + R[4] * qc + R[5] * rc,
+                  R[6] * pc + R[7] * qc + R[8] * rc)
+            p.resetBaseVelocity(body, angularVelocity=om, physicsClientId=cid)
+            # ... and cancel the gyroscopic torque so they stay constant through the sub-step.
+            gyro = (qc * Jz * rc - rc * Jy * qc, rc * Jx * pc - pc * Jz * rc,
+                    pc * Jy * qc - qc * Jx * pc)
+            self._thrust += alpha * (T - self._thrust)
+            if self._has_drag:
+                dx, dy, dz = self._drag_body(R, *self._vel, wx, wy, wz)
+            else:
+                dx = dy = dz = 0.0
+            p.applyExternalForce(body, -1, (dx, dy, dz + self._thrust), (0.0, 0.0, 0.0),
+                                 p.LINK_FRAME, physicsClientId=cid)
+            p.applyExternalTorque(body, -1, gyro, p.LINK_FRAME, physicsClientId=cid)
+            p.stepSimulation(physicsClientId=cid)
+            self._fetch()
+            cps = p.getContactPoints(bodyA=body, physicsClientId=cid)
+            if cps:
+                touched |= self._record_contacts(cps)
+        self._f = [self._thrust / 4.0] * 4
+        self._in_collision = touched
+        if not touched:
+            self._contacts = []
+
+    _CONTACT_TOL = 1e-3  # Bullet keeps points a little beyond touching; count only real contact
+
+    def _record_contacts(self, cps) -> bool:
+        found = []
+        for c in cps:
+            if c[8] > self._CONTACT_TOL:
+                continue
+            other = c[2]
+            found.append({
+                "other": "ground" if other == self._ground else
+                         ("obstacle" if other == self._obstacle else f"body{other}"),
+                "position": np.array(c[6]),
+                "normal": np.array(c[7]),    # Bullet: normal on B (the other body) towards A
+                "distance": float(c[8]),
+                "normal_force": float(c[9]),
+                "time": (self._steps + 1) * self.dt,
+            })
+        if found:
+            self._contacts = found
+            return True
+        return False
