@@ -29,7 +29,8 @@ import numpy as np
 from .quadrotor import QuadrotorParams
 from .validation import check_positive
 
-_MIN_DESIGN_TAU = 0.01  # motors faster than this are designed for as if tau = 10 ms
+_MIN_DESIGN_TAU = 0.01
+_NO_SATURATION = (0, 0, 0)  # motors faster than this are designed for as if tau = 10 ms
 
 
 def _triple(name: str, value) -> tuple[float, float, float]:
@@ -106,20 +107,24 @@ class Mixer:
         # Per-axis saturation of the last mix: +1/-1 when the torque about that axis was cut
         # while positive/negative, 0 otherwise. The rate controller stops integrating into it
         # (PX4's control allocator reports the same to mc_rate_control).
-        self.saturation: tuple[int, int, int] = (0, 0, 0)
+        self.saturation: tuple[int, int, int] = _NO_SATURATION
 
     def wrench(self, f) -> tuple[float, float, float, float]:
         """[T, tau_x, tau_y, tau_z] produced by rotor thrusts ``f``."""
         return tuple(float(x) for x in self.A @ np.asarray(f, float))
 
-    def mix(self, T: float, tx: float, ty: float, tz: float) -> list[float]:
+    def mix(self, T: float, tx: float, ty: float, tz: float) -> tuple[float, ...]:
         """Rotor thrusts for the requested wrench (desaturated as described above)."""
         bt, bx, by, bz = self._bt, self._bx, self._by, self._bz
         lo_lim, hi_lim = self.f_min, self.f_max
-        f = [T * bt[i] + tx * bx[i] + ty * by[i] + tz * bz[i] for i in range(4)]
-        if lo_lim <= min(f) and max(f) <= hi_lim:
-            self.saturation = (0, 0, 0)
-            return f
+        f0 = T * bt[0] + tx * bx[0] + ty * by[0] + tz * bz[0]
+        f1 = T * bt[1] + tx * bx[1] + ty * by[1] + tz * bz[1]
+        f2 = T * bt[2] + tx * bx[2] + ty * by[2] + tz * bz[2]
+        f3 = T * bt[3] + tx * bx[3] + ty * by[3] + tz * bz[3]
+        if (lo_lim <= f0 <= hi_lim and lo_lim <= f1 <= hi_lim and lo_lim <= f2 <= hi_lim
+                and lo_lim <= f3 <= hi_lim):   # fast path: nothing saturates
+            self.saturation = _NO_SATURATION
+            return f0, f1, f2, f3
         sat_x = sat_y = sat_z = 0
         # Roll/pitch first.
         base = [T * bt[i] for i in range(4)]
@@ -150,7 +155,7 @@ class Mixer:
         if k < 1.0:
             sat_z = (tz > 0) - (tz < 0)
         self.saturation = (sat_x, sat_y, sat_z)
-        return [min(max(f[i] + k * yz[i], lo_lim), hi_lim) for i in range(4)]
+        return tuple(min(max(f[i] + k * yz[i], lo_lim), hi_lim) for i in range(4))
 
 
 class RateController:
@@ -188,17 +193,31 @@ class RateController:
         ``saturation`` is :attr:`Mixer.saturation` of the previous mix: an axis whose torque was
         cut does not integrate further in that direction (anti-windup, as in PX4).
         """
-        kp, kd, ki_dt, ilim, J, beta = self._kp, self._kd, self._ki_dt, self._ilim, self._J, self._beta
-        i, d, prev = self.i, self.d, self.prev
-        out = []
-        for ax, sp, m in ((0, p_sp, p), (1, q_sp, q), (2, r_sp, r)):
-            e = sp - m
-            d[ax] += beta * ((m - prev[ax]) - d[ax])
-            prev[ax] = m
-            sat = saturation[ax]
-            if not (sat and (e > 0) == (sat > 0)):
-                ii = i[ax] + ki_dt[ax] * e
-                lim = ilim[ax]
-                i[ax] = lim if ii > lim else (-lim if ii < -lim else ii)
-            out.append(kp[ax] * e + J[ax] * i[ax] - kd[ax] * d[ax])
-        return out[0], out[1], out[2]
+        # Unrolled over the three axes: this runs at the physics rate in pure Python.
+        i, d, prev, beta = self.i, self.d, self.prev, self._beta
+        sx, sy, sz = saturation
+        ex, ey, ez = p_sp - p, q_sp - q, r_sp - r
+        dx = d[0] + beta * ((p - prev[0]) - d[0])
+        dy = d[1] + beta * ((q - prev[1]) - d[1])
+        dz = d[2] + beta * ((r - prev[2]) - d[2])
+        d[0], d[1], d[2] = dx, dy, dz
+        prev[0], prev[1], prev[2] = p, q, r
+        ix, iy, iz = i
+        kix, kiy, kiz = self._ki_dt
+        lx, ly, lz = self._ilim
+        if not (sx and (ex > 0) == (sx > 0)):
+            ix += kix * ex
+            ix = lx if ix > lx else (-lx if ix < -lx else ix)
+        if not (sy and (ey > 0) == (sy > 0)):
+            iy += kiy * ey
+            iy = ly if iy > ly else (-ly if iy < -ly else iy)
+        if not (sz and (ez > 0) == (sz > 0)):
+            iz += kiz * ez
+            iz = lz if iz > lz else (-lz if iz < -lz else iz)
+        i[0], i[1], i[2] = ix, iy, iz
+        kpx, kpy, kpz = self._kp
+        kdx, kdy, kdz = self._kd
+        Jx, Jy, Jz = self._J
+        return (kpx * ex + Jx * ix - kdx * dx,
+                kpy * ey + Jy * iy - kdy * dy,
+                kpz * ez + Jz * iz - kdz * dz)

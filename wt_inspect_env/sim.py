@@ -369,6 +369,9 @@ class QuadrotorSim:
         alpha = self._alpha
         (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
         has_drag = self._has_drag
+        dlx, dly, dlz = self._lin_drag
+        dqx, dqy, dqz = self._quad_drag
+        sqrt = math.sqrt
         per_rotor = self.config.per_rotor_forces
         rotor_pos = self._rotor_pos
         applyForce, applyTorque = p.applyExternalForce, p.applyExternalTorque
@@ -377,7 +380,7 @@ class QuadrotorSim:
         LINK = p.LINK_FRAME
         zero = (0.0, 0.0, 0.0)
         f0, f1, f2, f3 = self._f
-        quat, vel, omega = self._quat, self._vel, self._omega
+        pos, quat, vel, omega = self._pos, self._quat, self._vel, self._omega
         touched = False
         for _ in range(self._n_sub):
             R = getMat(quat)
@@ -391,8 +394,15 @@ class QuadrotorSim:
             f1 += alpha * (c1 - f1)
             f2 += alpha * (c2 - f2)
             f3 += alpha * (c3 - f3)
-            if has_drag:
-                dx, dy, dz = self._drag_body(R, vel[0], vel[1], vel[2], wx, wy, wz)
+            if has_drag:  # inlined _drag_body: v_rel in body axes, linear + quadratic drag
+                ax_, ay_, az_ = vel[0] - wx, vel[1] - wy, vel[2] - wz
+                bx = R[0] * ax_ + R[3] * ay_ + R[6] * az_
+                by = R[1] * ax_ + R[4] * ay_ + R[7] * az_
+                bz = R[2] * ax_ + R[5] * ay_ + R[8] * az_
+                sp = sqrt(bx * bx + by * by + bz * bz)
+                dx = -(dlx + dqx * sp) * bx
+                dy = -(dly + dqy * sp) * by
+                dz = -(dlz + dqz * sp) * bz
             else:
                 dx = dy = dz = 0.0
             if per_rotor:
@@ -409,14 +419,13 @@ class QuadrotorSim:
                                        a30 * f0 + a31 * f1 + a32 * f2 + a33 * f3),
                             LINK, physicsClientId=cid)
             stepSim(physicsClientId=cid)
-            quat = getPose(body, physicsClientId=cid)[1]
+            pos, quat = getPose(body, physicsClientId=cid)
             vel, omega = getVel(body, physicsClientId=cid)
             cps = getContacts(bodyA=body, physicsClientId=cid)
             if cps:
                 touched |= self._record_contacts(cps)
         self._f = [f0, f1, f2, f3]
-        self._pos = getPose(body, physicsClientId=cid)[0]
-        self._quat, self._vel, self._omega = quat, vel, omega
+        self._pos, self._quat, self._vel, self._omega = pos, quat, vel, omega
         self._in_collision = touched
         if not touched:
             self._contacts = []

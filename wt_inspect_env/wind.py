@@ -53,6 +53,13 @@ def _seed_sequence(seed: Any) -> np.random.SeedSequence:
     return np.random.SeedSequence(seed)
 
 
+def _tile(v: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """One copy of the (3,) velocity per position (a fresh array the caller may modify)."""
+    out = np.empty(positions.shape)
+    out[:] = v
+    return out
+
+
 class WindField:
     """Base class: a validated, seeded wind velocity field in the world frame.
 
@@ -130,7 +137,7 @@ class ConstantWind(WindField):
         super().__init__(seed)
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
-        return np.broadcast_to(self.velocity, positions.shape).copy()
+        return _tile(self.velocity, positions)
 
     def __repr__(self) -> str:
         return f"ConstantWind(velocity={self.velocity.tolist()})"
@@ -160,8 +167,7 @@ class GustWind(WindField):
         return self.mean_speed + self.amplitude * math.sin(2 * math.pi * t / self.period + self.phase)
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
-        v = self.speed(t) * self.direction
-        return np.broadcast_to(v, positions.shape).copy()
+        return _tile(self.speed(t) * self.direction, positions)
 
     def __repr__(self) -> str:
         return (f"GustWind(mean_speed={self.mean_speed}, direction={self.direction.tolist()}, "
@@ -333,7 +339,7 @@ class DrydenWind(WindField):
         v = self._axes @ self.turbulence(t)
         if self.include_mean:
             v = v + self.mean_speed * self.direction
-        return np.broadcast_to(v, positions.shape).copy()
+        return _tile(v, positions)
 
     def __repr__(self) -> str:
         return (f"DrydenWind(mean_speed={self.mean_speed}, direction={self.direction.tolist()}, "
