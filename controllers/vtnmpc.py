@@ -1,0 +1,319 @@
+"""The paper's visual-tracking NMPC (VT-NMPC) on the generic RTI core.
+
+Residuals (section "Proposed VT-NMPC Formulation" of the paper, signs and definitions as fixed in
+``authors-code-notes.md``), with a = p - x_drone, a_xy its horizontal part, n = (n_x, n_y, 0) the
+surface's outward unit normal and every norm guarded as sqrt(s^2 + eps) so that Gauss-Newton data
+never turn NaN:
+
+=============  ==============================================  ==========  =====================
+residual       definition                                      reference   paper weight (default)
+=============  ==============================================  ==========  =====================
+heading h      (R e_x) . a_xy / ||a_xy||                        1           w_h = 80
+distance d     ||a_xy||  (horizontal, not 3-D)                  d_ref = 7   w_d = 30
+ROI r          a_xy . n  (outward normals: drone at -d_ref)     -d_ref      w_r = 25
+orthogonal o   || a - (a . n) n ||  (includes the height gap)   0           w_o = 60
+x*             [u, v, w, qx, qy]                                [v_pt_B, 0, 0]  diag(0.3, 0.3, 1, 80, 80)
+u              [p, q, r, T]                                     [0, 0, 0, m g]  diag(1, 1, 0.25, 0.03)
+terminal       x*_N                                             as x*       1.5 W_x*
+=============  ==============================================  ==========  =====================
+
+v_pt_B is the inspection point's velocity expressed in the body frame of the measured attitude
+(once per solve, as in the paper). The heading is normalised by ||a_xy|| (the notes; the paper's
+formula omits it but its reference 1 needs it) and uses the full attitude rather than the authors'
+yaw-only approximation. The thrust reference is the hover thrust m g of the one parameter set
+(the authors' 44.6 N was a bug). Online parameters per solve: the point p, the normal n (n_z
+forced to 0 and renormalised) and v_pt_B: ``params = [p (3), n_x, n_y, v_pt_B (3)]``.
+
+Horizon N = 30 at 0.01 s, RK4 multiple shooting, |p|, |q|, |r| <= 100 deg/s and
+0.3 m g <= T <= 2 m g (the environment's action bounds, from :class:`ActionScaling`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+import casadi as ca
+import numpy as np
+
+from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
+from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
+from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.validation import check_finite, check_positive
+
+from .policy import Policy, check_observation
+from .rti import OCP, RTIOptions, RTISolver, SolveStats
+
+N_PARAMS = 8
+STAGE_RESIDUAL_NAMES = ("h", "d", "r", "o", "u", "v", "w", "qx", "qy", "p", "q", "r_rate", "T")
+TERMINAL_RESIDUAL_NAMES = ("u", "v", "w", "qx", "qy")
+
+
+@dataclass(frozen=True)
+class VTNMPCWeights:
+    """Diagonal least-squares weights of the VT-NMPC.
+
+    Defaults are the paper's (tuned by its authors' active-exploration method):
+    w_h 80, w_d 30, w_r 25, w_o 60, W_x* = diag(0.3, 0.3, 1, 80, 80),
+    W_u = diag(1, 1, 0.25, 0.03), W_N = 1.5 W_x*. :meth:`later_tuning` is the set from the
+    authors' later tuning file that matches their plotted results.
+    """
+
+    heading: float = 80.0
+    distance: float = 30.0
+    roi: float = 25.0
+    orthogonality: float = 60.0
+    x_star: tuple[float, ...] = (0.3, 0.3, 1.0, 80.0, 80.0)
+    inputs: tuple[float, ...] = (1.0, 1.0, 0.25, 0.03)
+    terminal_factor: float = 1.5
+
+    def __post_init__(self) -> None:
+        for name in ("heading", "distance", "roi", "orthogonality", "terminal_factor"):
+            check_positive(f"weights.{name}", getattr(self, name), allow_zero=True)
+        for name, n in (("x_star", 5), ("inputs", 4)):
+            vals = getattr(self, name)
+            try:
+                vals = tuple(float(v) for v in vals)
+            except (TypeError, ValueError):
+                raise ValueError(f"weights.{name} must be {n} numbers, got {vals!r}") from None
+            if len(vals) != n:
+                raise ValueError(f"weights.{name} must have {n} entries, got {len(vals)}")
+            for i, v in enumerate(vals):
+                check_positive(f"weights.{name}[{i}]", v, allow_zero=True)
+            object.__setattr__(self, name, vals)
+        # Gauss-Newton needs a positive-definite input block: R + B^T P B > 0 in the Riccati
+        # recursion of the QP; zero input weights leave it singular.
+        for i, v in enumerate(self.inputs):
+            if v == 0:
+                raise ValueError(f"weights.inputs[{i}] must be positive (a zero input weight makes "
+                                 f"the QP singular), got {v!r}")
+
+    @classmethod
+    def paper(cls) -> "VTNMPCWeights":
+        return cls()
+
+    @classmethod
+    def later_tuning(cls) -> "VTNMPCWeights":
+        """The authors' later tuning file: w_h 120, w_d 70, w_r 30, w_o 70, W_uvw (3, 3, 5),
+        W_qxqy 60, W_u (10, 10, 1.7, 0.025) (terminal factor unchanged, 1.5)."""
+        return cls(heading=120.0, distance=70.0, roi=30.0, orthogonality=70.0,
+                   x_star=(3.0, 3.0, 5.0, 60.0, 60.0), inputs=(10.0, 10.0, 1.7, 0.025))
+
+    def stage_vector(self) -> np.ndarray:
+        return np.array([self.heading, self.distance, self.roi, self.orthogonality,
+                         *self.x_star, *self.inputs])
+
+    def terminal_vector(self) -> np.ndarray:
+        return self.terminal_factor * np.array(self.x_star)
+
+
+WEIGHT_SETS: dict[str, VTNMPCWeights] = {
+    "paper": VTNMPCWeights.paper(),
+    "later_tuning": VTNMPCWeights.later_tuning(),
+}
+
+
+def _default_params() -> QuadrotorParams:
+    return get_preset("matrice100")
+
+
+@dataclass(frozen=True)
+class VTNMPCConfig:
+    """Everything that defines a VT-NMPC instance. ``weights`` may be a :class:`VTNMPCWeights`
+    or the name of a set in :data:`WEIGHT_SETS`; ``norm_eps`` is the guard (m^2) inside every
+    norm; ``scaling`` defaults to the environment's action scaling of ``params``."""
+
+    params: QuadrotorParams = field(default_factory=_default_params)
+    weights: VTNMPCWeights | str = "paper"
+    horizon: int = 30
+    dt: float = 0.01
+    d_ref: float = 7.0
+    norm_eps: float = 1e-6
+    rk4_steps: int = 1
+    scaling: ActionScaling | None = None
+    solver: RTIOptions = field(default_factory=RTIOptions)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.params, QuadrotorParams):
+            raise ValueError(f"params must be QuadrotorParams, got {type(self.params).__name__}")
+        if isinstance(self.weights, str):
+            if self.weights not in WEIGHT_SETS:
+                raise ValueError(f"unknown weights {self.weights!r}; valid: {', '.join(WEIGHT_SETS)}")
+            object.__setattr__(self, "weights", WEIGHT_SETS[self.weights])
+        elif not isinstance(self.weights, VTNMPCWeights):
+            raise ValueError(f"weights must be VTNMPCWeights or a set name, got {self.weights!r}")
+        for name in ("horizon", "rk4_steps"):
+            val = getattr(self, name)
+            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 1:
+                raise ValueError(f"{name} must be a positive integer, got {val!r}")
+        check_positive("dt", self.dt)
+        check_positive("d_ref", self.d_ref)
+        check_positive("norm_eps", self.norm_eps)
+        if self.scaling is None:
+            object.__setattr__(self, "scaling", ActionScaling.from_params(self.params))
+        elif not isinstance(self.scaling, ActionScaling):
+            raise ValueError(f"scaling must be an ActionScaling, got {self.scaling!r}")
+        if not isinstance(self.solver, RTIOptions):
+            raise ValueError(f"solver must be RTIOptions, got {self.solver!r}")
+
+    @property
+    def hover_input(self) -> np.ndarray:
+        return np.array([0.0, 0.0, 0.0, self.params.mass * GRAVITY])
+
+
+def visual_terms(x, params, eps: float):
+    """[h, d, r, o] for a state ``x`` and parameters [p, n_x, n_y, ...] (symbolic or numeric)."""
+    point = params[0:3]
+    n = ca.vertcat(params[3], params[4], 0)
+    a = point - x[0:3]
+    d = ca.sqrt(a[0] ** 2 + a[1] ** 2 + eps)
+    R = quat_to_rotmat(x[6:10])
+    heading = (R[0, 0] * a[0] + R[1, 0] * a[1]) / d
+    roi = a[0] * n[0] + a[1] * n[1]
+    perp = a - ca.dot(a, n) * n
+    orth = ca.sqrt(ca.dot(perp, perp) + eps)
+    return ca.vertcat(heading, d, roi, orth)
+
+
+def residual_functions(config: VTNMPCConfig) -> tuple[ca.Function, ca.Function]:
+    """(stage_residual(x, u, params), terminal_residual(x, params)), zero at the references."""
+    x = ca.SX.sym("x", NX)
+    u = ca.SX.sym("u", NU)
+    p = ca.SX.sym("p", N_PARAMS)
+    vis = visual_terms(x, p, config.norm_eps)
+    vis_res = vis - ca.vertcat(1.0, config.d_ref, -config.d_ref, 0.0)
+    x_star = ca.vertcat(x[3:6] - p[5:8], x[6], x[7])
+    u_res = u - ca.DM(config.hover_input)
+    stage = ca.Function("vtnmpc_r", [x, u, p], [ca.vertcat(vis_res, x_star, u_res)],
+                        ["x", "u", "p"], ["r"])
+    terminal = ca.Function("vtnmpc_rN", [x, p], [x_star], ["x", "p"], ["rN"])
+    return stage, terminal
+
+
+def build_ocp(config: VTNMPCConfig) -> OCP:
+    """The VT-NMPC as a generic least-squares OCP (RK4 of the shared quadrotor model)."""
+    model = QuadrotorModel(config.params)
+    x = ca.SX.sym("x", NX)
+    u = ca.SX.sym("u", NU)
+    p = ca.SX.sym("p", N_PARAMS)
+    F = ca.Function("vtnmpc_F", [x, u, p],
+                    [model.rk4_expr(x, u, config.dt, steps=config.rk4_steps)], ["x", "u", "p"],
+                    ["x_next"])
+    stage, terminal = residual_functions(config)
+    return OCP(name="vtnmpc", dynamics=F, stage_residual=stage, terminal_residual=terminal,
+               horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
+               u_upper=config.scaling.upper, fallback_input=config.hover_input)
+
+
+def state_from_obs(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """Model state [p, v_B, q] from a checked observation (quaternion renormalised)."""
+    q = obs["quaternion"]
+    nq = np.linalg.norm(q)
+    if nq < 1e-9:
+        raise ValueError(f"observation['quaternion'] must be a unit quaternion, got {q}")
+    return np.concatenate([obs["position"], obs["velocity_body"], q / nq])
+
+
+def horizontal_normal(normal: np.ndarray, fallback: np.ndarray | None) -> np.ndarray | None:
+    """(n_x, n_y) of ``normal`` with n_z dropped and renormalised; ``fallback`` when the normal is
+    (nearly) vertical and has no horizontal direction."""
+    nxy = np.asarray(normal, dtype=float)[:2]
+    norm = float(np.hypot(nxy[0], nxy[1]))
+    if norm < 1e-6:
+        return fallback
+    return nxy / norm
+
+
+def vtnmpc_parameters(state: np.ndarray, point: np.ndarray, normal_xy: np.ndarray,
+                      point_velocity_world: np.ndarray) -> np.ndarray:
+    """Online parameter vector: point, horizontal normal, point velocity in the body frame."""
+    R = quat_to_rotmat_np(state[6:10])
+    v_body = R.T @ np.asarray(point_velocity_world, dtype=float)
+    return np.concatenate([point, normal_xy, v_body])
+
+
+class VTNMPCPolicy(Policy):
+    """VT-NMPC as a policy: observation in, normalised (p, q, r, T) action out.
+
+    Each :meth:`act` runs one real-time iteration (prepare, feedback, shift) on the compiled QP
+    data; :attr:`last_stats` holds its :class:`SolveStats`.
+    """
+
+    def __init__(self, config: VTNMPCConfig | None = None, **overrides: Any) -> None:
+        if config is None:
+            config = VTNMPCConfig(**overrides)
+        elif overrides:
+            known = {f.name for f in fields(VTNMPCConfig)}
+            bad = sorted(set(overrides) - known)
+            if bad:
+                raise ValueError(f"unknown VTNMPCConfig option(s) {bad}; valid: {sorted(known)}")
+            import dataclasses
+            config = dataclasses.replace(config, **overrides)
+        self.config = config
+        self.ocp = build_ocp(config)
+        self.solver = RTISolver(self.ocp, config.weights.stage_vector(),
+                                config.weights.terminal_vector(), config.solver)
+        self.scaling = config.scaling
+        self._normal_xy: np.ndarray | None = None
+        self.last_stats: SolveStats = SolveStats()
+        self.last_command: np.ndarray | None = None
+
+    def reset(self, seed: int | None = None) -> None:
+        """Drop the warm start (the controller is deterministic; ``seed`` is accepted for the
+        common interface)."""
+        self.solver.reset()
+        self._normal_xy = None
+        self.last_stats = SolveStats()
+        self.last_command = None
+
+    def set_weights(self, weights: VTNMPCWeights | str) -> None:
+        """Switch weights without recompiling (they are runtime inputs of the QP data)."""
+        w = WEIGHT_SETS[weights] if isinstance(weights, str) and weights in WEIGHT_SETS else weights
+        if not isinstance(w, VTNMPCWeights):
+            raise ValueError(f"weights must be VTNMPCWeights or one of {list(WEIGHT_SETS)}, "
+                             f"got {weights!r}")
+        self.solver.set_weights(w.stage_vector(), w.terminal_vector())
+
+    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray) -> np.ndarray:
+        """Online parameters from a checked observation (see :func:`vtnmpc_parameters`).
+
+        A normal without horizontal part (top/bottom faces) keeps the previous horizontal normal,
+        or - at the first step - points from the inspection point towards the drone.
+        """
+        fallback = self._normal_xy
+        if fallback is None:
+            away = state[:2] - obs["point"][:2]
+            fallback = horizontal_normal(np.append(away, 0.0), np.array([1.0, 0.0]))
+        nxy = horizontal_normal(obs["normal"], fallback)
+        self._normal_xy = nxy
+        return vtnmpc_parameters(state, obs["point"], nxy, obs["point_velocity"])
+
+    def command(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Physical command [p, q, r, T] for an observation (one RTI step)."""
+        o = check_observation(obs)
+        x = state_from_obs(o)
+        params = self.parameters(o, x)
+        u = self.solver.step(x, params)
+        self.last_stats = self.solver.last_stats
+        self.last_command = u
+        return u
+
+    def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        return self.scaling.to_action(self.command(obs))
+
+    @property
+    def predicted_states(self) -> np.ndarray:
+        """The current plan's states (N+1, 10) (shifted one stage after each act)."""
+        return self.solver.states
+
+
+def ideal_state(point, normal, d_ref: float, velocity_body=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The pose the VT-NMPC aims for: p + d_ref n_xy at the point's height, level, facing the
+    point (yaw along -n_xy)."""
+    n = horizontal_normal(np.asarray(normal, float), None)
+    if n is None:
+        raise ValueError(f"normal must have a horizontal component, got {normal!r}")
+    check_finite("d_ref", d_ref)
+    pos = np.asarray(point, float) + d_ref * np.array([n[0], n[1], 0.0])
+    yaw = np.arctan2(-n[1], -n[0])
+    return np.concatenate([pos, np.asarray(velocity_body, float),
+                           [0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]])
