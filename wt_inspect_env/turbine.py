@@ -1,0 +1,529 @@
+"""The wind-turbine model: a validated spec, the triangle mesh built from it, and mesh loading.
+
+Geometry (the paper's simplified Vestas V100, section "Triangular Mesh Generation")
+-------------------------------------------------------------------------------------
+* The tower is a closed cylinder of ``tower_radius`` standing on the ground at ``position`` (x, y);
+  its top is at the hub height ``tower_height``.
+* The rotor centre is ``overhang`` in front of the tower axis, along the facing direction
+  ``f = (cos facing_deg, sin facing_deg, 0)``; ``rotor_axis = f`` (the default faces +y, so the
+  paper's wind along y blows across the rotor face). A hub cylinder of ``hub_radius`` runs along
+  the axis from the tower axis to a little in front of the blades; hub and tower are obstacles,
+  never inspected.
+* Three cuboid blades ``blade_length x blade_width x blade_thickness`` start at ``hub_radius`` from
+  the rotor centre. Blade k points along ``R(axis, rotor_azimuth_deg + 120 k) @ (0, 0, 1)``
+  (right-handed rotation about the rotor axis), so azimuth 0 is the paper's inverted Y: blade 0
+  straight up, blade 1 120 deg further (for the default axis +y: towards +x, 30 deg below
+  horizontal), blade 2 at 240 deg (towards -x, 30 deg below horizontal).
+* The chord (width) lies in the rotor plane, the thickness along the rotor axis: the two wide faces
+  look along +-axis, the two narrow edge faces look sideways in the rotor plane. On the inverted Y
+  each lower blade therefore has one narrow face looking 60 deg below horizontal: the faces the
+  paper inspects in its second phase, after turning the rotor by 120 deg.
+
+Meshing: every face is a regular grid of at most ``mesh_step`` cells, each split along a diagonal
+into two right-angle triangles, wound so that their normals point out of the blade. Vertices of
+neighbouring faces coincide exactly, so every blade (four long faces + root and tip caps) is a
+closed surface. Only the four long faces are *inspected* (``blade_*`` arrays); the caps are part of
+:attr:`TurbineMesh.mesh` (for collision, occlusion and export) but not of the inspection target.
+
+Face labels (``triangle_face``): 0 front (+axis), 1 back (-axis), 2 edge towards +chord
+(``chord = axis x radial``), 3 edge towards -chord. ``triangle_surface = 4 * blade + face``. The
+planner does not use these labels (it clusters by geometry, so it also works on loaded meshes);
+tests use them to check the clustering.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+import trimesh
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from .atomic_io import write_bytes_atomic
+from .validation import check_array, check_finite, check_positive, check_unknown_options
+
+MAX_TRIANGLES = 1_000_000     # a mesh step that would need more triangles is rejected
+N_BLADES = 3
+CYLINDER_SECTIONS = 24        # facets around the tower and hub cylinders
+FACE_NAMES = ("front", "back", "edge+", "edge-")
+EXPORT_FORMATS = ("stl", "obj")
+
+
+# --------------------------------------------------------------------------- small geometry helpers
+def rotation_matrix(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """Right-handed rotation by ``angle_rad`` about the unit vector ``axis`` (Rodrigues)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.eye(3) + math.sin(angle_rad) * K + (1.0 - math.cos(angle_rad)) * (K @ K)
+
+
+def triangle_normals_areas(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Unit normals from the winding (right-hand rule) and areas of ``(N, 3, 3)`` triangles."""
+    cross = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    norm = np.linalg.norm(cross, axis=1)
+    areas = 0.5 * norm
+    with np.errstate(invalid="ignore", divide="ignore"):
+        normals = cross / norm[:, None]
+    return normals, areas
+
+
+def touching_pairs(tris: np.ndarray, tol: float | None = None) -> np.ndarray:
+    """Index pairs ``(i, j)``, ``i < j``, of triangles that share a vertex position (within ``tol``).
+
+    Purely geometric (a KD-tree on vertex positions), so it works on triangle soups read from STL
+    files as well as on indexed meshes. ``tol`` defaults to 1e-3 of the median edge length.
+    """
+    flat = np.asarray(tris, dtype=np.float64).reshape(-1, 3)
+    if tol is None:
+        edges = np.linalg.norm(tris[:, [1, 2, 0]] - tris, axis=2)
+        tol = 1e-3 * float(np.median(edges)) if edges.size else 0.0
+    pairs = cKDTree(flat).query_pairs(max(tol, 1e-12), output_type="ndarray")
+    # each vertex also touches the other two vertices of its own triangle only if they coincide
+    # (degenerate); those give i == j and are dropped.
+    t = pairs // 3
+    t = t[t[:, 0] != t[:, 1]]
+    t.sort(axis=1)
+    return np.unique(t, axis=0) if len(t) else np.zeros((0, 2), dtype=np.int64)
+
+
+def components(n: int, pairs: np.ndarray) -> np.ndarray:
+    """Connected-component label of each of ``n`` nodes linked by ``pairs`` (labels 0..k-1)."""
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n, n)) if len(pairs) \
+        else coo_matrix((n, n))
+    _, labels = connected_components(g, directed=False)
+    return labels.astype(np.int64)
+
+
+def _grid_triangles(P: np.ndarray, outward: np.ndarray) -> np.ndarray:
+    """Split the grid of points ``P (n1+1, n2+1, 3)`` into right-angle triangles facing ``outward``."""
+    p00, p10 = P[:-1, :-1], P[1:, :-1]
+    p11, p01 = P[1:, 1:], P[:-1, 1:]
+    t1 = np.stack([p00, p10, p11], axis=-2)      # right angle at p10
+    t2 = np.stack([p00, p11, p01], axis=-2)      # right angle at p01
+    tris = np.stack([t1, t2], axis=2).reshape(-1, 3, 3)
+    n, _ = triangle_normals_areas(tris[:1])
+    if float(n[0] @ outward) < 0:
+        tris = tris[:, [0, 2, 1]]
+    return tris
+
+
+def _cylinder(base: np.ndarray, axis: np.ndarray, radius: float, length: float,
+              ring_step: float, sections: int = CYLINDER_SECTIONS) -> np.ndarray:
+    """Closed cylinder (side in rings of at most ``ring_step``, fan caps), outward wound triangles."""
+    axis = axis / np.linalg.norm(axis)
+    e1 = np.cross(axis, [0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.cross(axis, [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    n_rings = max(1, math.ceil(length / ring_step))
+    h = np.linspace(0.0, length, n_rings + 1)
+    ang = 2.0 * np.pi * (np.arange(sections + 1) % sections) / sections
+    ring = radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)       # (S+1, 3)
+    P = base + h[:, None, None] * axis + ring[None]                                 # (R+1, S+1, 3)
+    # _grid_triangles decides the winding from the first cell, whose outward direction is ring[0]
+    # turned by half a section: close enough, and the side grid is uniformly wound.
+    side = _grid_triangles(P, outward=ring[0])
+    bottom_c, top_c = base, base + length * axis
+    b0, b1 = P[0, :-1], P[0, 1:]
+    t0, t1 = P[-1, :-1], P[-1, 1:]
+    bottom = np.stack([np.broadcast_to(bottom_c, b0.shape), b1, b0], axis=1)
+    top = np.stack([np.broadcast_to(top_c, t0.shape), t0, t1], axis=1)
+    nb, _ = triangle_normals_areas(bottom[:1])
+    if float(nb[0] @ axis) > 0:
+        bottom = bottom[:, [0, 2, 1]]
+    nt, _ = triangle_normals_areas(top[:1])
+    if float(nt[0] @ axis) < 0:
+        top = top[:, [0, 2, 1]]
+    return np.concatenate([side, bottom, top])
+
+
+def _soup_to_trimesh(tris: np.ndarray) -> trimesh.Trimesh:
+    """Indexed trimesh of a triangle soup, coincident vertices merged, face order kept."""
+    n = len(tris)
+    mesh = trimesh.Trimesh(vertices=tris.reshape(-1, 3), faces=np.arange(3 * n).reshape(n, 3),
+                           process=True)
+    if len(mesh.faces) != n:  # pragma: no cover - trimesh would have to drop faces
+        raise RuntimeError(f"trimesh changed the face count {n} -> {len(mesh.faces)}")
+    return mesh
+
+
+# --------------------------------------------------------------------------- the spec
+@dataclass(frozen=True)
+class TurbineSpec:
+    """Dimensions and placement of the turbine (SI units, angles in degrees as the names say).
+
+    ``None`` defaults are derived from the others and stored resolved after validation:
+    ``blade_thickness = blade_width / 3`` (the paper), ``hub_radius = 0.7 blade_width`` (2.1 m for
+    the V100; must exceed ``blade_width / (2 sqrt 3)`` or neighbouring blade roots would
+    intersect), ``overhang = tower_radius + hub_radius`` (horizontal distance tower axis -> rotor
+    plane; must exceed ``tower_radius + blade_thickness / 2`` so a blade pointing down clears the
+    tower).
+    """
+
+    tower_height: float = 120.0
+    blade_length: float = 50.0
+    blade_width: float = 3.0
+    blade_thickness: float | None = None
+    position: tuple[float, float] = (0.0, 0.0)
+    rotor_azimuth_deg: float = 0.0
+    facing_deg: float = 90.0
+    hub_radius: float | None = None
+    overhang: float | None = None
+    tower_radius: float = 2.0
+    mesh_step: float = 1.5
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        put("tower_height", check_positive("tower_height", self.tower_height))
+        put("blade_length", check_positive("blade_length", self.blade_length))
+        put("blade_width", check_positive("blade_width", self.blade_width))
+        if self.blade_width >= self.blade_length:
+            raise ValueError(f"blade_width must be smaller than blade_length ({self.blade_length!r}), "
+                             f"got {self.blade_width!r}")
+        t = self.blade_width / 3.0 if self.blade_thickness is None else \
+            check_positive("blade_thickness", self.blade_thickness)
+        if t > self.blade_width:
+            raise ValueError(f"blade_thickness must not exceed blade_width ({self.blade_width!r}), "
+                             f"got {self.blade_thickness!r}")
+        put("blade_thickness", t)
+        pos = check_array("position", self.position, (2,))
+        put("position", (float(pos[0]), float(pos[1])))
+        put("rotor_azimuth_deg", check_finite("rotor_azimuth_deg", self.rotor_azimuth_deg))
+        put("facing_deg", check_finite("facing_deg", self.facing_deg))
+        put("tower_radius", check_positive("tower_radius", self.tower_radius))
+        min_hub = self.blade_width / (2.0 * math.sqrt(3.0))
+        hub = 0.7 * self.blade_width if self.hub_radius is None else \
+            check_positive("hub_radius", self.hub_radius)
+        if hub <= min_hub:
+            raise ValueError(f"hub_radius must exceed blade_width/(2*sqrt(3)) = {min_hub:.4g} m, or "
+                             f"neighbouring blade roots intersect; got {self.hub_radius!r}")
+        put("hub_radius", hub)
+        min_over = self.tower_radius + t / 2.0
+        over = self.tower_radius + hub if self.overhang is None else \
+            check_positive("overhang", self.overhang)
+        if over <= min_over:
+            raise ValueError(f"overhang must exceed tower_radius + blade_thickness/2 = {min_over:.4g} m "
+                             f"so that a blade pointing down clears the tower; got {self.overhang!r}")
+        put("overhang", over)
+        put("mesh_step", check_positive("mesh_step", self.mesh_step))
+        if self.tip_radius >= self.tower_height:
+            raise ValueError(
+                f"blade_length {self.blade_length!r} is too long for tower_height {self.tower_height!r}: "
+                f"the rotor (tip radius {self.tip_radius:.4g} m incl. hub_radius) would hit the ground")
+        n_tri = self.n_triangles
+        if n_tri > MAX_TRIANGLES:
+            raise ValueError(f"mesh_step {self.mesh_step!r} would make {n_tri:,} triangles "
+                             f"(limit {MAX_TRIANGLES:,}); use a larger step")
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, Any]) -> "TurbineSpec":
+        """Build from a mapping (e.g. parsed JSON); unknown keys raise ``ValueError``."""
+        check_unknown_options("turbine", options.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**dict(options))
+
+    # derived quantities ------------------------------------------------------------------
+    @property
+    def tip_radius(self) -> float:
+        """Distance from the rotor centre to the outer corners of a blade tip."""
+        return math.hypot(self.hub_radius + self.blade_length, self.blade_width / 2.0)
+
+    @property
+    def facing(self) -> np.ndarray:
+        """Unit horizontal rotor axis ``(cos facing, sin facing, 0)``."""
+        f = math.radians(self.facing_deg)
+        return np.array([math.cos(f), math.sin(f), 0.0])
+
+    @property
+    def rotor_center(self) -> np.ndarray:
+        return np.array([self.position[0], self.position[1], self.tower_height]) + self.overhang * self.facing
+
+    @property
+    def grid(self) -> tuple[int, int, int]:
+        """Cells per blade face: (along the length, across the width, across the thickness)."""
+        s = self.mesh_step
+        return (math.ceil(self.blade_length / s - 1e-9), math.ceil(self.blade_width / s - 1e-9),
+                math.ceil(self.blade_thickness / s - 1e-9))
+
+    @property
+    def n_blade_triangles(self) -> int:
+        """Inspected triangles (four long faces of the three blades)."""
+        nu, nv, nt = self.grid
+        return N_BLADES * 2 * nu * (2 * nv + 2 * nt)
+
+    @property
+    def n_cap_triangles(self) -> int:
+        nu, nv, nt = self.grid
+        return N_BLADES * 2 * 2 * nv * nt
+
+    @property
+    def n_triangles(self) -> int:
+        """Blade triangles incl. caps (the obstacle cylinders add a few thousand more)."""
+        return self.n_blade_triangles + self.n_cap_triangles
+
+
+# --------------------------------------------------------------------------- the mesh
+class TurbineMesh:
+    """A turbine as triangles: inspected blade faces, blade caps, and obstacles (hub + tower).
+
+    Blade triangle ``i`` is the same physical triangle in every rotated copy (:meth:`rotated`), so
+    coverage counted by index survives the rotor turn. ``mesh`` lists the blade triangles first
+    (faces ``0..M-1`` are ``blade_vertices``), then the caps, then the obstacles.
+    """
+
+    def __init__(self, *, blade_vertices: np.ndarray, triangle_blade: np.ndarray,
+                 triangle_face: np.ndarray, triangle_surface: np.ndarray,
+                 cap_vertices: np.ndarray, cap_blade: np.ndarray, obstacle_mesh: trimesh.Trimesh,
+                 rotor_center: np.ndarray, rotor_axis: np.ndarray, spec: TurbineSpec | None = None,
+                 rotor_turn_deg: float = 0.0) -> None:
+        bv = np.ascontiguousarray(blade_vertices, dtype=np.float64)
+        if bv.ndim != 3 or bv.shape[1:] != (3, 3) or len(bv) == 0:
+            raise ValueError(f"blade_vertices must have shape (M, 3, 3) with M > 0, got {bv.shape}")
+        normals, areas = triangle_normals_areas(bv)
+        if not np.all(areas > 0):
+            raise ValueError(f"blade_vertices has {int(np.sum(~(areas > 0)))} degenerate triangles")
+        self.blade_vertices = bv
+        self.blade_normals = normals
+        self.blade_areas = areas
+        self.blade_centroids = bv.mean(axis=1)
+        m = len(bv)
+        self.triangle_blade = np.asarray(triangle_blade, dtype=np.int64).reshape(m)
+        self.triangle_face = np.asarray(triangle_face, dtype=np.int64).reshape(m)
+        self.triangle_surface = np.asarray(triangle_surface, dtype=np.int64).reshape(m)
+        self.cap_vertices = np.asarray(cap_vertices, dtype=np.float64).reshape(-1, 3, 3)
+        self.cap_blade = np.asarray(cap_blade, dtype=np.int64).reshape(len(self.cap_vertices))
+        self.obstacle_mesh = obstacle_mesh
+        self.rotor_center = check_array("rotor_center", rotor_center, (3,)).copy()
+        axis = check_array("rotor_axis", rotor_axis, (3,))
+        if np.linalg.norm(axis) < 1e-9:
+            raise ValueError(f"rotor_axis must be non-zero, got {axis!r}")
+        self.rotor_axis = axis / np.linalg.norm(axis)
+        self.spec = spec
+        self.rotor_turn_deg = float(rotor_turn_deg)
+        for arr in (self.blade_vertices, self.blade_normals, self.blade_areas, self.blade_centroids,
+                    self.triangle_blade, self.triangle_face, self.triangle_surface, self.cap_vertices,
+                    self.cap_blade, self.rotor_center, self.rotor_axis):
+            arr.setflags(write=False)
+
+    def __repr__(self) -> str:
+        return (f"TurbineMesh({len(self.blade_vertices)} blade triangles, {len(self.cap_vertices)} cap, "
+                f"{len(self.obstacle_mesh.faces)} obstacle; rotor turned {self.rotor_turn_deg:g} deg)")
+
+    @property
+    def n_blade_triangles(self) -> int:
+        return len(self.blade_vertices)
+
+    @property
+    def azimuth_deg(self) -> float | None:
+        """Current rotor azimuth (spec azimuth + turns), ``None`` for a loaded mesh."""
+        return None if self.spec is None else self.spec.rotor_azimuth_deg + self.rotor_turn_deg
+
+    @cached_property
+    def mesh(self) -> trimesh.Trimesh:
+        """Everything (blades, caps, hub, tower) as one trimesh, blade triangles first."""
+        parts = [self.blade_vertices, self.cap_vertices, self.obstacle_mesh.triangles]
+        return _soup_to_trimesh(np.concatenate([p.reshape(-1, 3, 3) for p in parts]))
+
+    @cached_property
+    def all_triangles(self) -> np.ndarray:
+        """``(N, 3, 3)`` triangles of :attr:`mesh` in the same order (for distance queries)."""
+        return np.concatenate([self.blade_vertices, self.cap_vertices,
+                               np.asarray(self.obstacle_mesh.triangles).reshape(-1, 3, 3)])
+
+    def blade_solid(self, blade: int) -> trimesh.Trimesh:
+        """The closed surface of one blade (its four long faces and its caps)."""
+        tris = np.concatenate([self.blade_vertices[self.triangle_blade == blade],
+                               self.cap_vertices[self.cap_blade == blade]])
+        if len(tris) == 0:
+            raise ValueError(f"blade {blade!r} has no triangles")
+        return _soup_to_trimesh(tris)
+
+    def rotated(self, angle_deg: float) -> "TurbineMesh":
+        """The same turbine with the rotor turned by ``angle_deg`` about its axis (right-handed)."""
+        angle = check_finite("angle_deg", angle_deg)
+        R = rotation_matrix(self.rotor_axis, math.radians(angle))
+        c = self.rotor_center
+
+        def rot(v: np.ndarray) -> np.ndarray:
+            return (v - c) @ R.T + c
+
+        return TurbineMesh(
+            blade_vertices=rot(self.blade_vertices), triangle_blade=self.triangle_blade,
+            triangle_face=self.triangle_face, triangle_surface=self.triangle_surface,
+            cap_vertices=rot(self.cap_vertices), cap_blade=self.cap_blade,
+            obstacle_mesh=self.obstacle_mesh, rotor_center=c, rotor_axis=self.rotor_axis,
+            spec=self.spec, rotor_turn_deg=self.rotor_turn_deg + angle)
+
+    def export(self, path: str | Path) -> Path:
+        """Write :attr:`mesh` as STL or OBJ (by suffix), atomically; returns the path."""
+        path = Path(path)
+        fmt = path.suffix.lower().lstrip(".")
+        if fmt not in EXPORT_FORMATS:
+            raise ValueError(f"export path must end in .stl or .obj, got {str(path)!r}")
+        data = self.mesh.export(file_type=fmt)
+        write_bytes_atomic(path, data if isinstance(data, bytes) else data.encode("utf-8"))
+        return path
+
+
+def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMesh:
+    """Mesh the turbine of ``spec`` (default: the paper's V100); ``options`` override spec fields."""
+    if spec is None:
+        spec = TurbineSpec.from_options(options)
+    elif options:
+        check_unknown_options("turbine", options.keys(), [f.name for f in dataclasses.fields(TurbineSpec)])
+        spec = dataclasses.replace(spec, **options)
+    nu, nv, nt = spec.grid
+    L, w, t, r0 = spec.blade_length, spec.blade_width, spec.blade_thickness, spec.hub_radius
+    axis = spec.facing
+    center = spec.rotor_center
+    ug = np.linspace(0.0, L, nu + 1)
+    vg = np.linspace(-w / 2.0, w / 2.0, nv + 1)
+    sg = np.linspace(-t / 2.0, t / 2.0, nt + 1)
+    up = np.array([0.0, 0.0, 1.0])
+
+    blades, b_lab, f_lab, caps, c_lab = [], [], [], [], []
+    for k in range(N_BLADES):
+        radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
+        chord = np.cross(axis, radial)
+
+        def point(U: Any, V: Any, S: Any) -> np.ndarray:
+            U, V, S = np.broadcast_arrays(np.asarray(U, float), np.asarray(V, float), np.asarray(S, float))
+            return (center + (r0 + U)[..., None] * radial + V[..., None] * chord + S[..., None] * axis)
+
+        U1, V1 = np.meshgrid(ug, vg, indexing="ij")
+        U2, S2 = np.meshgrid(ug, sg, indexing="ij")
+        V3, S3 = np.meshgrid(vg, sg, indexing="ij")
+        faces = [
+            _grid_triangles(point(U1, V1, sg[-1]), axis),        # 0 front
+            _grid_triangles(point(U1, V1, sg[0]), -axis),        # 1 back
+            _grid_triangles(point(U2, vg[-1], S2), chord),       # 2 edge +chord
+            _grid_triangles(point(U2, vg[0], S2), -chord),       # 3 edge -chord
+        ]
+        for fi, tris in enumerate(faces):
+            blades.append(tris)
+            b_lab.append(np.full(len(tris), k))
+            f_lab.append(np.full(len(tris), fi))
+        for tris in (_grid_triangles(point(ug[0], V3, S3), -radial),
+                     _grid_triangles(point(ug[-1], V3, S3), radial)):
+            caps.append(tris)
+            c_lab.append(np.full(len(tris), k))
+
+    base = np.array([spec.position[0], spec.position[1], 0.0])
+    tower = _cylinder(base, up, spec.tower_radius, spec.tower_height,
+                      ring_step=max(2.0 * spec.mesh_step, spec.tower_height / 200.0))
+    hub_len = spec.overhang + t / 2.0 + 0.5 * r0
+    hub = _cylinder(center - spec.overhang * axis, axis, r0, hub_len, ring_step=spec.mesh_step)
+    blade_faces = np.concatenate(blades)
+    b_lab_a, f_lab_a = np.concatenate(b_lab), np.concatenate(f_lab)
+    return TurbineMesh(
+        blade_vertices=blade_faces, triangle_blade=b_lab_a, triangle_face=f_lab_a,
+        triangle_surface=4 * b_lab_a + f_lab_a, cap_vertices=np.concatenate(caps),
+        cap_blade=np.concatenate(c_lab), obstacle_mesh=_soup_to_trimesh(np.concatenate([tower, hub])),
+        rotor_center=center, rotor_axis=axis, spec=spec)
+
+
+# --------------------------------------------------------------------------- loading
+def _principal_axis(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted mean, eigenvalues (ascending) and eigenvectors (columns) of a point cloud."""
+    w = weights / weights.sum()
+    mean = w @ points
+    d = points - mean
+    cov = (d * w[:, None]).T @ d
+    vals, vecs = np.linalg.eigh(cov)
+    return mean, vals, vecs
+
+
+def load_turbine_mesh(path: str | Path, *, blade_faces: Any = None, obstacle_faces: Any = None,
+                      rotor_center: Any = None, rotor_axis: Any = None) -> TurbineMesh:
+    """Read a turbine from an STL/OBJ file.
+
+    Blade (inspected) triangles are the faces listed in ``blade_faces``, or all faces not in
+    ``obstacle_faces``, or every face. Face indices refer to the file's face order (kept as read).
+    Blade labels come from geometry (triangles touching each other form one blade); face and
+    surface labels are -1 (unknown: the planner clusters by geometry). The rotor centre and axis,
+    needed for :meth:`TurbineMesh.rotated`, are estimated when not given: the axis as the direction
+    of least spread of the blade triangles (oriented away from the obstacles), the centre as the
+    least-squares meeting point of the blades' centre lines.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"path {str(path)!r} is not a file")
+    try:
+        mesh = trimesh.load(str(p), force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many different types for unreadable files
+        raise ValueError(f"path {str(path)!r} could not be read as a mesh: {exc}") from None
+    tris = np.asarray(mesh.triangles, dtype=np.float64).reshape(-1, 3, 3)
+    n = len(tris)
+    if n == 0:
+        raise ValueError(f"path {str(path)!r} holds no triangles")
+    if blade_faces is not None and obstacle_faces is not None:
+        raise ValueError("give blade_faces or obstacle_faces, not both")
+    mask = np.ones(n, dtype=bool)
+    for name, idx, value in (("blade_faces", blade_faces, True), ("obstacle_faces", obstacle_faces, False)):
+        if idx is None:
+            continue
+        arr = np.asarray(idx)
+        if arr.dtype == bool:
+            raise ValueError(f"{name} must be face indices, got a boolean array")
+        arr = arr.astype(np.int64).ravel()
+        if arr.size and (arr.min() < 0 or arr.max() >= n):
+            raise ValueError(f"{name} must index the {n} faces of the file, got range "
+                             f"[{arr.min()}, {arr.max()}]")
+        mask = np.zeros(n, dtype=bool) if value else np.ones(n, dtype=bool)
+        mask[arr] = value
+    if not mask.any():
+        raise ValueError("no blade triangles left (blade_faces empty or obstacle_faces covers all)")
+    blade = tris[mask]
+    _, areas = triangle_normals_areas(blade)
+    if not np.all(areas > 0):
+        raise ValueError(f"path {str(path)!r}: {int(np.sum(~(areas > 0)))} degenerate blade triangles")
+    obstacle = tris[~mask]
+    blade_lab = components(len(blade), touching_pairs(blade))
+    cent = blade.mean(axis=1)
+
+    if rotor_axis is None:
+        _, _, vecs = _principal_axis(cent, areas)
+        axis = vecs[:, 0]
+        if len(obstacle):
+            away = cent.mean(axis=0) - obstacle.reshape(-1, 3).mean(axis=0)
+            away[2] = 0.0
+            if away @ axis < 0:
+                axis = -axis
+        elif axis[np.argmax(np.abs(axis))] < 0:
+            axis = -axis
+    else:
+        axis = check_array("rotor_axis", rotor_axis, (3,))
+    if rotor_center is None:
+        A, b = np.zeros((3, 3)), np.zeros(3)
+        n_lines = 0
+        for k in np.unique(blade_lab):
+            sel = blade_lab == k
+            m, vals, vecs = _principal_axis(cent[sel], areas[sel])
+            if vals[-1] <= 4.0 * vals[-2]:     # not elongated: no usable centre line
+                continue
+            d = vecs[:, -1]
+            P = np.eye(3) - np.outer(d, d)
+            A += P
+            b += P @ m
+            n_lines += 1
+        if n_lines < 2 or np.linalg.cond(A) > 1e8:
+            raise ValueError("rotor_center could not be estimated from the blades; pass rotor_center "
+                             "and rotor_axis")
+        center = np.linalg.solve(A, b)
+    else:
+        center = check_array("rotor_center", rotor_center, (3,))
+    obstacle_mesh = _soup_to_trimesh(obstacle) if len(obstacle) else trimesh.Trimesh()
+    return TurbineMesh(
+        blade_vertices=blade, triangle_blade=blade_lab, triangle_face=np.full(len(blade), -1),
+        triangle_surface=np.full(len(blade), -1), cap_vertices=np.zeros((0, 3, 3)),
+        cap_blade=np.zeros(0, dtype=np.int64), obstacle_mesh=obstacle_mesh,
+        rotor_center=center, rotor_axis=axis, spec=None)
