@@ -120,6 +120,8 @@ class _Run:
             self.dp_dtau = np.where(dtau[:, None] > 0, np.diff(points, axis=0) / dtau[:, None], 0.0)
             self.ds_dtau = np.where(dtau > 0, ds / dtau, 0.0)
         self.dtau = dtau
+        # point | normal | horizontal direction | s, stacked so one interpolation serves all
+        self.geom = np.column_stack([points, normals, self.hdir, s])
 
     def locate(self, tau: float) -> tuple[int, float]:
         n = len(self.tau)
@@ -219,17 +221,22 @@ class InspectionReference:
 
     def ideal_position(self) -> np.ndarray:
         """The current ideal stand-off pose."""
-        run = self._runs[self._run]
-        return self._interp(run, *run.locate(self._tau))[3]
+        return self._ideal.copy()
 
     def step(self, dt: float, drone_position=None) -> ReferenceSample:
         """Advance by ``dt`` seconds given the drone's current position (needed in closed loop)."""
         dt = check_positive("reference dt", dt)
         lag = float("nan")
         if drone_position is not None:
-            x = check_array("drone_position", drone_position, (3,))
-            q = self.ideal_position()
-            lag = math.sqrt(float((x[0] - q[0]) ** 2 + (x[1] - q[1]) ** 2 + (x[2] - q[2]) ** 2))
+            try:
+                x0, x1, x2 = (float(v) for v in drone_position)
+            except (TypeError, ValueError):
+                check_array("drone_position", drone_position, (3,))
+                raise
+            q = self._ideal
+            lag = math.sqrt((x0 - q[0]) ** 2 + (x1 - q[1]) ** 2 + (x2 - q[2]) ** 2)
+            if not math.isfinite(lag):
+                check_array("drone_position", drone_position, (3,))
         elif self._closed:
             raise ValueError("drone_position is required in closed_loop mode, got None")
         self._time += dt
@@ -264,21 +271,29 @@ class InspectionReference:
     # ------------------------------------------------------------------------------------------
     def _interp(self, run: _Run, k: int, frac: float):
         if len(run.tau) == 1:
-            return run.points[0].copy(), run.normals[0].copy(), float(run.s[0]), run.ideal[0].copy()
-        p = run.points[k] + frac * (run.points[k + 1] - run.points[k])
-        n = run.normals[k] + frac * (run.normals[k + 1] - run.normals[k])
-        nn = math.sqrt(float(n @ n))
+            g = run.geom[0].copy()
+        else:
+            g0 = run.geom[k]
+            g = g0 + frac * (run.geom[k + 1] - g0)
+        p = g[0:3]
+        n = g[3:6]
+        nn = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
         n = n / nn if nn > 1e-9 else run.normals[k].copy()
-        h = run.hdir[k] + frac * (run.hdir[k + 1] - run.hdir[k])
-        hn = math.hypot(h[0], h[1])
-        h = h / hn if hn > 1e-9 else run.hdir[k]
-        s = float(run.s[k] + frac * (run.s[k + 1] - run.s[k]))
-        return p, n, s, p + self.config.standoff * h
+        hx, hy = g[6], g[7]
+        hn = math.hypot(hx, hy)
+        if hn > 1e-9:
+            hx, hy = hx / hn, hy / hn
+        else:
+            hx, hy = run.hdir[k, 0], run.hdir[k, 1]
+        d = self.config.standoff
+        ideal = np.array([p[0] + d * hx, p[1] + d * hy, p[2]])
+        return p, n, float(g[9]), ideal
 
     def _sample(self, sigma: float, lag: float, *, hold_started: bool, phase_changed: bool) -> ReferenceSample:
         run = self._runs[self._run]
         k, frac = run.locate(self._tau)
         p, n, s, ideal = self._interp(run, k, frac)
+        self._ideal = ideal
         moving = not (self._holding or self._done) and len(run.tau) > 1
         if moving and sigma > 0.0:
             velocity = (sigma * self.config.speed) * run.dp_dtau[k]
