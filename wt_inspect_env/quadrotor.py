@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_choice, check_finite, check_positive
+from .validation import check_choice, check_positive
 
 GRAVITY = 9.81
 AIR_DENSITY = 1.225

@@ -40,6 +40,10 @@ def _triple(name: str, value) -> tuple[float, float, float]:
     return tuple(check_positive(f"{name}[{i}]", v, allow_zero=True) for i, v in enumerate(vals))
 
 
+def _sign(x: float) -> int:
+    return 1 if x > 0 else (-1 if x < 0 else 0)
+
+
 @dataclass(frozen=True)
 class RateGains:
     """Body-rate PID gains in angular-acceleration units, per axis (roll, pitch, yaw).
@@ -132,8 +136,8 @@ class Mixer:
         rp_lo, rp_hi = min(rp), max(rp)
         span = hi_lim - lo_lim
         if rp_hi - rp_lo > span:
-            sat_x = (tx > 0) - (tx < 0)
-            sat_y = (ty > 0) - (ty < 0)
+            sat_x = _sign(tx)
+            sat_y = _sign(ty)
             s = span / (rp_hi - rp_lo)
             rp = [s * x for x in rp]
             rp_lo, rp_hi = s * rp_lo, s * rp_hi
@@ -153,7 +157,7 @@ class Mixer:
             elif yz[i] < 0:
                 k = min(k, max(f[i] - lo_lim, 0.0) / -yz[i])
         if k < 1.0:
-            sat_z = (tz > 0) - (tz < 0)
+            sat_z = _sign(tz)
         self.saturation = (sat_x, sat_y, sat_z)
         return tuple(min(max(f[i] + k * yz[i], lo_lim), hi_lim) for i in range(4))
 

@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -38,12 +38,6 @@ from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
 from .rate_control import Mixer, RateController, RateGains
 from .validation import check_array, check_positive
 from .wind import WindField, make_wind
-
-try:  # trimesh is a core dependency; imported lazily-safe for type checks only
-    import trimesh
-except ImportError:  # pragma: no cover
-    trimesh = None
-
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -131,7 +125,15 @@ class QuadrotorSim:
         self.mixer = Mixer(params)
         self.rate_controller = RateController(gains, params.inertia, self.physics_dt)
         tau = params.motor_time_constant
-        self._alpha = (1.0 - math.exp(-self.physics_dt / tau)) if (config.motor_lag and tau > 0) else 1.0
+        # First-order lag, exact for a command held over a sub-step: the state moves by a fraction
+        # alpha of the gap, and the thrust *averaged over the sub-step* (what the force should be)
+        # by a fraction beta (~ alpha / 2), which keeps the impulse right to O(dt^2).
+        if config.motor_lag and tau > 0:
+            r = self.physics_dt / tau
+            self._alpha = 1.0 - math.exp(-r)
+            self._beta = 1.0 - self._alpha / r
+        else:
+            self._alpha = self._beta = 1.0
         A = self.mixer.A
         self._A_tau = tuple(tuple(float(x) for x in A[row]) for row in (1, 2, 3))
         self._rotor_pos = [tuple(float(c) for c in r) for r in params.rotor_positions]
@@ -366,7 +368,7 @@ class QuadrotorSim:
         ctrl_update = self.rate_controller.update
         mixer = self.mixer
         mix = mixer.mix
-        alpha = self._alpha
+        alpha, beta = self._alpha, self._beta
         (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
         has_drag = self._has_drag
         dlx, dly, dlz = self._lin_drag
@@ -390,7 +392,11 @@ class QuadrotorSim:
             rm = R[2] * ox + R[5] * oy + R[8] * oz
             tx, ty, tz = ctrl_update(pc, qc, rc, pm, qm, rm, mixer.saturation)
             c0, c1, c2, c3 = mix(T, tx, ty, tz)
-            f0 += alpha * (c0 - f0)
+            g0 = f0 + beta * (c0 - f0)      # sub-step mean thrusts (applied) ...
+            g1 = f1 + beta * (c1 - f1)
+            g2 = f2 + beta * (c2 - f2)
+            g3 = f3 + beta * (c3 - f3)
+            f0 += alpha * (c0 - f0)         # ... and end-of-sub-step rotor states
             f1 += alpha * (c1 - f1)
             f2 += alpha * (c2 - f2)
             f3 += alpha * (c3 - f3)
@@ -406,17 +412,17 @@ class QuadrotorSim:
             else:
                 dx = dy = dz = 0.0
             if per_rotor:
-                for pos_i, f_i in zip(rotor_pos, (f0, f1, f2, f3)):
+                for pos_i, f_i in zip(rotor_pos, (g0, g1, g2, g3)):
                     applyForce(body, -1, (0.0, 0.0, f_i), pos_i, LINK, physicsClientId=cid)
                 applyForce(body, -1, (dx, dy, dz), zero, LINK, physicsClientId=cid)
-                applyTorque(body, -1, (0.0, 0.0, a30 * f0 + a31 * f1 + a32 * f2 + a33 * f3),
+                applyTorque(body, -1, (0.0, 0.0, a30 * g0 + a31 * g1 + a32 * g2 + a33 * g3),
                             LINK, physicsClientId=cid)
             else:
-                applyForce(body, -1, (dx, dy, dz + f0 + f1 + f2 + f3), zero, LINK,
+                applyForce(body, -1, (dx, dy, dz + g0 + g1 + g2 + g3), zero, LINK,
                            physicsClientId=cid)
-                applyTorque(body, -1, (a10 * f0 + a11 * f1 + a12 * f2 + a13 * f3,
-                                       a20 * f0 + a21 * f1 + a22 * f2 + a23 * f3,
-                                       a30 * f0 + a31 * f1 + a32 * f2 + a33 * f3),
+                applyTorque(body, -1, (a10 * g0 + a11 * g1 + a12 * g2 + a13 * g3,
+                                       a20 * g0 + a21 * g1 + a22 * g2 + a23 * g3,
+                                       a30 * g0 + a31 * g1 + a32 * g2 + a33 * g3),
                             LINK, physicsClientId=cid)
             stepSim(physicsClientId=cid)
             pos, quat = getPose(body, physicsClientId=cid)
@@ -432,7 +438,7 @@ class QuadrotorSim:
 
     def _run_imposed_rates(self, pc, qc, rc, T, wx, wy, wz) -> None:
         cid, body = self._client, self._body
-        alpha = self._alpha
+        alpha, beta = self._alpha, self._beta
         Jx, Jy, Jz = self.params.inertia
         touched = False
         for _ in range(self._n_sub):
@@ -445,12 +451,13 @@ class QuadrotorSim:
             # ... and cancel the gyroscopic torque so they stay constant through the sub-step.
             gyro = (qc * Jz * rc - rc * Jy * qc, rc * Jx * pc - pc * Jz * rc,
                     pc * Jy * qc - qc * Jx * pc)
+            thrust = self._thrust + beta * (T - self._thrust)     # sub-step mean
             self._thrust += alpha * (T - self._thrust)
             if self._has_drag:
                 dx, dy, dz = self._drag_body(R, *self._vel, wx, wy, wz)
             else:
                 dx = dy = dz = 0.0
-            p.applyExternalForce(body, -1, (dx, dy, dz + self._thrust), (0.0, 0.0, 0.0),
+            p.applyExternalForce(body, -1, (dx, dy, dz + thrust), (0.0, 0.0, 0.0),
                                  p.LINK_FRAME, physicsClientId=cid)
             p.applyExternalTorque(body, -1, gyro, p.LINK_FRAME, physicsClientId=cid)
             p.stepSimulation(physicsClientId=cid)

@@ -23,7 +23,7 @@ Fields provided (the paper's experiment is :class:`GustWind` with its defaults a
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping
 
 import numpy as np
 import scipy.linalg
@@ -295,31 +295,34 @@ class DrydenWind(WindField):
         self._C = C
 
     # --- lazily generated samples ----------------------------------------------------------
-    _CHUNK = 1024
-    _KEEP_CHUNKS = 64   # memory bound: older samples are regenerated on demand (deterministic)
+    # Samples are generated in chunks of _CHUNK grid points (each chunk also stores the first
+    # point of the next one, so interpolation never straddles chunks). Only the last _KEEP_CHUNKS
+    # are kept; a query further in the past replays the process from t = 0, which gives the
+    # same values because the noise stream is fixed by the seed.
+    _CHUNK = 256
+    _KEEP_CHUNKS = 256
 
     def _restart(self) -> None:
         self._gen = np.random.default_rng(self._seed_seq)
         self._x = self._P_chol @ self._gen.standard_normal(self._phi.shape[0])  # stationary start
-        self._base = 0                                  # index of the first stored sample
-        self._samples = np.empty((0, 3))
+        self._first_chunk = 0                           # index of self._chunks[0]
+        self._chunks: list[np.ndarray] = []
 
     def _extend(self) -> None:
-        n = self._CHUNK
-        w = self._gen.standard_normal((n, self._phi.shape[0])) @ self._G.T
-        xs = np.empty((n, self._phi.shape[0]))
+        n, nx = self._CHUNK, self._phi.shape[0]
+        w = self._gen.standard_normal((n, nx)) @ self._G.T
+        xs = np.empty((n + 1, nx))
         x = self._x
         phi = self._phi
         for k in range(n):
             xs[k] = x
             x = phi @ x + w[k]
+        xs[n] = x
         self._x = x
-        new = xs @ self._C.T
-        self._samples = np.concatenate([self._samples, new])
-        excess = self._samples.shape[0] - self._KEEP_CHUNKS * n
-        if excess > 0:
-            self._samples = self._samples[excess:]
-            self._base += excess
+        self._chunks.append(xs @ self._C.T)
+        if len(self._chunks) > self._KEEP_CHUNKS:
+            del self._chunks[0]
+            self._first_chunk += 1
 
     def turbulence(self, t: float) -> np.ndarray:
         """(3,) turbulence velocity in the (u, v, w) wind axes at time t (t >= 0)."""
@@ -328,12 +331,13 @@ class DrydenWind(WindField):
         k = t / self.sample_dt
         i = int(k)
         frac = k - i
-        if i < self._base:  # asked for the past beyond the stored window: replay from t = 0
+        c, j = divmod(i, self._CHUNK)
+        if c < self._first_chunk:  # older than the stored window: replay from t = 0
             self._restart()
-        while i + 1 >= self._base + self._samples.shape[0]:
+        while c >= self._first_chunk + len(self._chunks):
             self._extend()
-        j = i - self._base
-        return (1.0 - frac) * self._samples[j] + frac * self._samples[j + 1]
+        chunk = self._chunks[c - self._first_chunk]
+        return (1.0 - frac) * chunk[j] + frac * chunk[j + 1]
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
         v = self._axes @ self.turbulence(t)
