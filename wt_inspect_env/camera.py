@@ -121,7 +121,7 @@ class GimbalCamera:
         if not isinstance(self.config, CameraConfig):
             raise ValueError(f"camera config must be a CameraConfig, got {type(self.config).__name__}")
         c = self.config
-        self._offset = np.asarray(c.mount_offset, dtype=float)
+        self._offset_xyz = tuple(float(v) for v in c.mount_offset)
         tilt = math.radians(c.mount_pitch_deg)
         self._cos_tilt, self._sin_tilt = math.cos(tilt), math.sin(tilt)
         self.fx, self.fy = c.fx, c.fy
@@ -139,20 +139,28 @@ class GimbalCamera:
         undefined; the projection of body -z/+z is then used, i.e. the nose direction the drone
         is tipping towards.)
         """
-        p = check_array("camera position", position, (3,))
-        q = check_array("camera quaternion", quaternion, (4,))
-        nq = math.sqrt(float(q @ q))
+        try:
+            px, py, pz = (float(v) for v in position)
+            qx, qy, qz, qw = (float(v) for v in quaternion)
+        except (TypeError, ValueError):
+            check_array("camera position", position, (3,))
+            check_array("camera quaternion", quaternion, (4,))
+            raise
+        nq = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+        if not math.isfinite(px + py + pz + nq):
+            check_array("camera position", position, (3,))
+            check_array("camera quaternion", quaternion, (4,))
         if nq < 1e-9:
             raise ValueError(f"camera quaternion must be non-zero, got {quaternion!r}")
-        qx, qy, qz, qw = (float(v) / nq for v in q)
+        qx, qy, qz, qw = qx / nq, qy / nq, qz / nq, qw / nq
         # Body-to-world rotation (same formula as dynamics.quat_to_rotmat_np, written out for speed).
         r00 = 1 - 2 * (qy * qy + qz * qz); r01 = 2 * (qx * qy - qw * qz); r02 = 2 * (qx * qz + qw * qy)
         r10 = 2 * (qx * qy + qw * qz); r11 = 1 - 2 * (qx * qx + qz * qz); r12 = 2 * (qy * qz - qw * qx)
         r20 = 2 * (qx * qz - qw * qy); r21 = 2 * (qy * qz + qw * qx); r22 = 1 - 2 * (qx * qx + qy * qy)
-        ox, oy, oz = self._offset
-        origin = np.array([p[0] + r00 * ox + r01 * oy + r02 * oz,
-                           p[1] + r10 * ox + r11 * oy + r12 * oz,
-                           p[2] + r20 * ox + r21 * oy + r22 * oz])
+        ox, oy, oz = self._offset_xyz
+        origin = np.array([px + r00 * ox + r01 * oy + r02 * oz,
+                           py + r10 * ox + r11 * oy + r12 * oz,
+                           pz + r20 * ox + r21 * oy + r22 * oz])
         hx, hy = r00, r10
         if hx * hx + hy * hy < 1e-12:  # nose vertical: fall back to the body z axis' projection
             s = -1.0 if r20 > 0 else 1.0

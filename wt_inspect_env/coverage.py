@@ -179,6 +179,7 @@ class TriangleVisibility:
         self.occluder = occluder
         self.occlusion_eps = check_positive("occlusion_eps", occlusion_eps)
         self.occlusion_samples = check_choice("occlusion_samples", occlusion_samples, OCCLUSION_SAMPLES)
+        self._fov_scale = np.array([camera.fx / camera.cx, camera.fy / camera.cy, 1.0])
         self.set_mesh(vertices, normals)
 
     @property
@@ -221,14 +222,14 @@ class TriangleVisibility:
         if len(idx) == 0:
             return idx
         rel = self.vertices[idx] - o                                    # (k, 3, 3)
-        pc = rel @ np.asarray(R, dtype=float)                           # camera coordinates
+        # Camera coordinates with x, y scaled by the half-FOV tangents: a point in front of the
+        # camera projects inside the image (0 <= u <= W, 0 <= v <= H, principal point at the
+        # centre) exactly when max(|x'|, |y'|) <= z; no division needed.
+        pc = rel @ (np.asarray(R, dtype=float) * self._fov_scale)
         z = pc[..., 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = cam.fx * pc[..., 0] / z + cam.cx
-            v = cam.fy * pc[..., 1] / z + cam.cy
-        ok = ((z > 0.0) & (u >= 0.0) & (u <= cam.width_px) & (v >= 0.0) & (v <= cam.height_px)
-              & (np.einsum("kvi,kvi->kv", rel, rel) <= cam.max_range * cam.max_range)).all(axis=1)
-        idx = idx[ok]
+        inside = (np.abs(pc[..., :2]).max(axis=-1) <= z) & (z > 0.0)
+        inside &= np.einsum("kvi,kvi->kv", rel, rel) <= cam.max_range * cam.max_range
+        idx = idx[inside.all(axis=1)]
         if self.occluder is None or self.occlusion_samples == "none" or len(idx) == 0:
             return idx
         return idx[~self._occluded(o, idx)]
