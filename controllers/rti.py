@@ -43,6 +43,8 @@ from wt_inspect_env.validation import check_array, check_choice, check_positive
 
 from .codegen import CompiledFunction, compile_function, uncompiled
 
+BOUND_INF = 1e8  # stands for an infinite bound in the QP
+
 HPIPM_STATUS: dict[int, str] = {
     0: "SUCCESS", 1: "MAX_ITER", 2: "MIN_STEP", 3: "NAN_SOL", 4: "INCONSISTENT_EQ",
 }
@@ -318,8 +320,10 @@ def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function
     if nh:
         CDs, hs = res[5], res[6]
         blocks = [ca.vertcat(ab, cd) for ab, cd in zip(ca.horzsplit(ABs, nz), ca.horzsplit(CDs, nz))]
-        lo = ca.vec(ca.vertcat(ndefs, ca.repmat(ca.DM(ocp.h_lower), 1, N) - hs))
-        hi = ca.vec(ca.vertcat(ndefs, ca.repmat(ca.DM(ocp.h_upper), 1, N) - hs))
+        h_lo = ca.DM(np.clip(ocp.h_lower, -BOUND_INF, BOUND_INF))
+        h_hi = ca.DM(np.clip(ocp.h_upper, -BOUND_INF, BOUND_INF))
+        lo = ca.vec(ca.vertcat(ndefs, ca.repmat(h_lo, 1, N) - hs))
+        hi = ca.vec(ca.vertcat(ndefs, ca.repmat(h_hi, 1, N) - hs))
     else:
         blocks = ca.horzsplit(ABs, nz)
         lo = hi = ca.vec(ndefs)
@@ -393,11 +397,15 @@ class RTISolver:
         }
         self._qp = ca.conic(f"{ocp.name}_qp", "hpipm", qp_struct, qp_opts)
 
-        # absolute variable bounds in stage order; x_0 is replaced by the measurement each step
-        self._lb_abs = np.concatenate(
-            [np.tile(np.concatenate([ocp.x_lower, ocp.u_lower]), N), ocp.x_lower])
-        self._ub_abs = np.concatenate(
-            [np.tile(np.concatenate([ocp.x_upper, ocp.u_upper]), N), ocp.x_upper])
+        # absolute variable bounds in stage order; x_0 is replaced by the measurement each step.
+        # Infinite bounds become +-BOUND_INF here (HPIPM bounds every variable; CasADi's own
+        # replacement of infinities does not cover every bound vector in all versions).
+        self._lb_abs = np.clip(np.concatenate(
+            [np.tile(np.concatenate([ocp.x_lower, ocp.u_lower]), N), ocp.x_lower]),
+            -BOUND_INF, BOUND_INF)
+        self._ub_abs = np.clip(np.concatenate(
+            [np.tile(np.concatenate([ocp.x_upper, ocp.u_upper]), N), ocp.x_upper]),
+            -BOUND_INF, BOUND_INF)
 
         # ---- preallocated arrays shared with the CasADi buffers (modify in place only) --------
         self._w = np.zeros(ocp.n_vars)

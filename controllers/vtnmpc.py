@@ -38,12 +38,13 @@ import numpy as np
 from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
 from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
 from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_finite, check_positive
+from wt_inspect_env.validation import check_choice, check_finite, check_positive
 
 from .policy import Policy, check_observation
-from .rti import OCP, RTIOptions, RTISolver, SolveStats
+from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
 N_PARAMS = 8
+BACKENDS = ("rti", "ipopt")
 STAGE_RESIDUAL_NAMES = ("h", "d", "r", "o", "u", "v", "w", "qx", "qy", "p", "q", "r_rate", "T")
 TERMINAL_RESIDUAL_NAMES = ("u", "v", "w", "qx", "qy")
 
@@ -120,7 +121,9 @@ def _default_params() -> QuadrotorParams:
 class VTNMPCConfig:
     """Everything that defines a VT-NMPC instance. ``weights`` may be a :class:`VTNMPCWeights`
     or the name of a set in :data:`WEIGHT_SETS`; ``norm_eps`` is the guard (m^2) inside every
-    norm; ``scaling`` defaults to the environment's action scaling of ``params``."""
+    norm; ``scaling`` defaults to the environment's action scaling of ``params``. ``backend``
+    ``"rti"`` is the real-time iteration; ``"ipopt"`` solves every step to convergence with
+    IPOPT (warm-started) - the slow reference of the benchmark."""
 
     params: QuadrotorParams = field(default_factory=_default_params)
     weights: VTNMPCWeights | str = "paper"
@@ -131,6 +134,7 @@ class VTNMPCConfig:
     rk4_steps: int = 1
     scaling: ActionScaling | None = None
     solver: RTIOptions = field(default_factory=RTIOptions)
+    backend: str = "rti"
 
     def __post_init__(self) -> None:
         if not isinstance(self.params, QuadrotorParams):
@@ -154,6 +158,7 @@ class VTNMPCConfig:
             raise ValueError(f"scaling must be an ActionScaling, got {self.scaling!r}")
         if not isinstance(self.solver, RTIOptions):
             raise ValueError(f"solver must be RTIOptions, got {self.solver!r}")
+        check_choice("backend", self.backend, BACKENDS)
 
     @property
     def hover_input(self) -> np.ndarray:
@@ -250,8 +255,12 @@ class VTNMPCPolicy(Policy):
             config = dataclasses.replace(config, **overrides)
         self.config = config
         self.ocp = build_ocp(config)
-        self.solver = RTISolver(self.ocp, config.weights.stage_vector(),
-                                config.weights.terminal_vector(), config.solver)
+        if config.backend == "ipopt":
+            self.solver: RTISolver | IpoptOCPSolver = IpoptOCPSolver(
+                self.ocp, config.weights.stage_vector(), config.weights.terminal_vector())
+        else:
+            self.solver = RTISolver(self.ocp, config.weights.stage_vector(),
+                                    config.weights.terminal_vector(), config.solver)
         self.scaling = config.scaling
         self._normal_xy: np.ndarray | None = None
         self.last_stats: SolveStats = SolveStats()
