@@ -128,7 +128,7 @@ PRESETS: dict[str, QuadrotorParams] = {
     "lab250": QuadrotorParams(
         name="lab250",
         mass=1.09,
-        inertia=(0.0067, 0.0067, 0.012),
+        inertia=(0.0031, 0.0031, 0.0053),
         arm_length=0.125,
         max_rotor_thrust=7.0,
         torque_coeff=0.011,
@@ -139,10 +139,12 @@ PRESETS: dict[str, QuadrotorParams] = {
         frame_height=0.08,
         source=(
             "The paper's lab quadrotor: 1.09 kg, 250 mm motor-to-motor diagonal -> 0.125 m arm "
-            "(paper, Experimental Setup); inertia from a 0.6 kg 0.1 m central box plus 4 x 0.05 kg "
-            "motors (estimated); 7 N per rotor (5-inch props, thrust/weight 2.6); torque/thrust "
-            "0.011 m, motor lag 0.02 s, drag scaled by mass from the Matrice figures, 5-inch prop "
-            "disks and 0.08 m frame height for the collision box (estimated)."
+            "(paper, Experimental Setup); inertia from 4 x 0.05 kg motors on the arms plus the other "
+            "0.89 kg (Jetson TX2, battery, Pixhawk, frame) as a 0.12x0.12x0.08 m box (estimated); "
+            "7 N per rotor (5-inch props, thrust/weight 2.6); torque/thrust 0.011 m, motor lag "
+            "0.02 s (estimated); linear drag 0.5 N/(m/s) per kg horizontally (the M100 model has "
+            "0.8), C_d A 0.01 m^2 frontal, 5-inch prop disks and 0.08 m frame height for the "
+            "collision box (estimated)."
         ),
     ),
 }
