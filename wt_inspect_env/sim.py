@@ -146,30 +146,34 @@ class QuadrotorSim:
         if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients
             raise RuntimeError("PyBullet could not create a DIRECT client")
         self._client = cid
-        p.resetSimulation(physicsClientId=cid)
-        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
-        p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
-                                    deterministicOverlappingPairs=1, physicsClientId=cid)
-        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
-                                       physicsClientId=cid)
-        self._body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape,
-                                       basePosition=[0, 0, 1], physicsClientId=cid)
-        p.changeDynamics(self._body, -1, linearDamping=0.0, angularDamping=0.0,
-                         localInertiaDiagonal=list(params.inertia),
-                         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
-                         physicsClientId=cid)
-        self._ground = -1
-        if config.ground:
-            plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
-            self._ground = p.createMultiBody(0.0, plane, basePosition=[0, 0, config.ground_height],
-                                             physicsClientId=cid)
-        self._obstacle = -1
-        self._obstacle_shape = -1
-        if obstacles is not None:
-            self.set_obstacles(obstacles)
-        self._last_wind = np.zeros(3)
-        self._contacts: list[dict] = []
-        self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
+        try:  # never leak the client when the rest of the set-up rejects its input
+            p.resetSimulation(physicsClientId=cid)
+            p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
+            p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
+                                        deterministicOverlappingPairs=1, physicsClientId=cid)
+            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
+                                           physicsClientId=cid)
+            self._body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape,
+                                           basePosition=[0, 0, 1], physicsClientId=cid)
+            p.changeDynamics(self._body, -1, linearDamping=0.0, angularDamping=0.0,
+                             localInertiaDiagonal=list(params.inertia),
+                             activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
+                             physicsClientId=cid)
+            self._ground = -1
+            if config.ground:
+                plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
+                self._ground = p.createMultiBody(0.0, plane, basePosition=[0, 0, config.ground_height],
+                                                 physicsClientId=cid)
+            self._obstacle = -1
+            self._obstacle_shape = -1
+            if obstacles is not None:
+                self.set_obstacles(obstacles)
+            self._last_wind = np.zeros(3)
+            self._contacts: list[dict] = []
+            self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
+        except BaseException:
+            self.close()
+            raise
 
     # ------------------------------------------------------------------ lifecycle
     @property
