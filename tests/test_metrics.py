@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.metrics import (BLOCK, InspectionMetrics, MetricAccumulator, MetricsConfig,
-                                    compute_metrics)
+from wt_inspect_env.metrics import (InspectionMetrics, MetricAccumulator, MetricsConfig, compute_metrics,
+                                    heading_and_distance)
 
 CENTER = np.array([10.0, -5.0, 100.0])
 
@@ -133,13 +133,13 @@ def _assert_identical(a: InspectionMetrics, b: InspectionMetrics):
 
 def test_accumulator_gives_identical_numbers_to_batch():
     rng = np.random.default_rng(5)
-    n = 2 * BLOCK + 300
+    n = 2500
     t, x, q, p, nrm, col, new, vis, insp, d_ref = _random_flight(rng, n)
     acc = MetricAccumulator(n_triangles=5000, config=MetricsConfig(pixel_ifov_rad=1.6e-4))
     for k in range(n):
         acc.add(t[k], x[k], q[k], p[k], nrm[k], collision=bool(col[k]), n_new=int(new[k]), n_visible=int(vis[k]),
                 d_ref=d_ref[k], inspecting=bool(insp[k]))
-        if k in (10, BLOCK - 1, BLOCK, 2 * BLOCK + 7):      # mid-flight results, across block boundaries
+        if k in (0, 10, 1023, 1900):                        # mid-flight results
             ref = compute_metrics(t[:k + 1], x[:k + 1], q[:k + 1], p[:k + 1], nrm[:k + 1], collisions=col[:k + 1],
                                   n_new=new[:k + 1], n_visible=vis[:k + 1], d_ref=d_ref[:k + 1],
                                   inspecting=insp[:k + 1], n_triangles=5000, config=acc.config)
@@ -148,6 +148,11 @@ def test_accumulator_gives_identical_numbers_to_batch():
                             inspecting=insp, n_triangles=5000, config=acc.config)
     _assert_identical(acc.result(), batch)
     assert acc.n_samples == n and batch.collisions > 10 and 0 < batch.safety_sm < 1
+    # per-step helper: same h and d as the metrics of a one-sample flight
+    for k in (0, 7, 99):
+        h, d = heading_and_distance(x[k], q[k], p[k])
+        one = compute_metrics(t[k:k + 1], x[k:k + 1], q[k:k + 1], p[k:k + 1], nrm[k:k + 1])
+        assert (h, d) == (one.centering_cm, one.mean_distance_m)
     # and the batch numbers agree with a plain per-sample re-derivation
     a = p - x
     d = np.hypot(a[:, 0], a[:, 1])

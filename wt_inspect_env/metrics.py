@@ -14,7 +14,8 @@ With ``a = p - x_drone`` and ``a_xy`` its horizontal part (the paper's notation)
 * heading ``h = (R e_x) . a_xy / |a_xy|`` with R the body-to-world rotation (full attitude, as in
   the paper) and centering ``CM`` = mean h; ``h = 0`` when the drone is straight above the point;
 * coverage = sum(n_new) / n_triangles; redundancy = sum(n_visible) / sum(n_new), the mean number of
-  frames in which a seen triangle appeared, and ``mean_view_time_s`` the same in seconds;
+  frames in which a seen triangle appeared, and ``mean_view_time_s`` the same in seconds (times
+  the mean sample interval);
 * what an inspection engineer also asks: min/max/mean distance, RMS and max distance error,
   heading error of the (yaw-following) camera in degrees, incidence angle between n and the line
   of sight, the offset of the drone from the normal line through p (the paper's orthogonality
@@ -26,10 +27,12 @@ Distance, safety, centering, incidence and GSD statistics use the inspecting sam
 collisions and coverage use all samples. Samples are weighted equally (the paper averages "over
 the entire trajectory"), so record them at a fixed rate.
 
-:class:`MetricAccumulator` (incremental, used by the environment) buffers raw samples in a fixed
-block of rows and reduces each full block with the same vectorised kernel that
-:func:`compute_metrics` (whole trajectories) applies to the same blocks, so both return *identical*
-numbers, per-step cost is a row write, and memory stays flat however long the episode.
+:class:`MetricAccumulator` (incremental, used by the environment) keeps running sums, minima and
+maxima in plain floats: ``add`` costs ~10 us, ``result`` is O(1) and memory does not grow.
+:func:`compute_metrics` (whole trajectories) evaluates the same per-sample formulas vectorised,
+with the same floating-point operations in the same order (explicit products instead of ``einsum``,
+sequential sums through ``np.cumsum``, ``math.atan2``/``math.acos`` per sample), so both return
+*bitwise identical* numbers - the test suite checks it on random flights.
 """
 from __future__ import annotations
 
@@ -41,10 +44,7 @@ import numpy as np
 
 from .validation import check_array, check_positive
 
-BLOCK = 256  # rows per reduction block (flush cost amortised; result() reduces at most this many)
-# Column layout of the raw sample rows.
-_T, _X, _Q, _P, _N, _DREF, _COL, _NEW, _VIS, _INSP = 0, slice(1, 4), slice(4, 8), slice(8, 11), slice(11, 14), 14, 15, 16, 17, 18
-_NCOLS = 19
+RAD2DEG = 180.0 / math.pi
 
 
 @dataclass(frozen=True)
@@ -96,12 +96,13 @@ class InspectionMetrics:
     mean_gsd_mm: float
 
     def to_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        """Plain ``{name: int | float}`` (cheap: called for the env's ``info`` every step)."""
+        return dict(self.__dict__)
 
 
 @dataclass
 class _Totals:
-    """Partial sums over blocks; merged in block order so every path adds in the same order."""
+    """Running sums / extrema (sums are sequential in sample order in both code paths)."""
 
     n: int = 0
     n_insp: int = 0
@@ -127,94 +128,16 @@ class _Totals:
     t_first: float = math.nan
     t_last: float = math.nan
 
-    def merged(self, o: "_Totals") -> "_Totals":
-        if o.n == 0:
-            return dataclasses.replace(self)
-        return _Totals(
-            n=self.n + o.n, n_insp=self.n_insp + o.n_insp, safe=self.safe + o.safe,
-            sum_h=self.sum_h + o.sum_h, min_h=min(self.min_h, o.min_h),
-            sum_herr=self.sum_herr + o.sum_herr, max_herr=max(self.max_herr, o.max_herr),
-            sum_d=self.sum_d + o.sum_d, min_d=min(self.min_d, o.min_d), max_d=max(self.max_d, o.max_d),
-            sum_err2=self.sum_err2 + o.sum_err2, max_abs_err=max(self.max_abs_err, o.max_abs_err),
-            sum_inc=self.sum_inc + o.sum_inc, max_inc=max(self.max_inc, o.max_inc),
-            sum_o=self.sum_o + o.sum_o, sum_dist3=self.sum_dist3 + o.sum_dist3, path=self.path + o.path,
-            col_events=self.col_events + o.col_events, col_samples=self.col_samples + o.col_samples,
-            new=self.new + o.new, vis=self.vis + o.vis,
-            t_first=self.t_first if self.n else o.t_first, t_last=o.t_last)
-
-
-def _block_totals(rows: np.ndarray, prev_position: np.ndarray | None, prev_collision: bool,
-                  margin: float) -> _Totals:
-    """Vectorised reduction of a block of raw rows (the one kernel both code paths use)."""
-    tot = _Totals(n=len(rows))
-    if len(rows) == 0:
-        return tot
-    x, n = rows[:, _X], rows[:, _N]
-    insp = rows[:, _INSP] > 0.5
-    col = rows[:, _COL] > 0.5
-    a = rows[:, _P] - x
-    q = rows[:, _Q]
-    qq = np.einsum("ij,ij->i", q, q)
-    qx, qy, qz, qw = q.T
-    # body x axis in the world (first column of R for the normalised quaternion), horizontal part
-    bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-    bx1 = 2.0 * (qx * qy + qw * qz) / qq
-    dot = bx0 * a[:, 0] + bx1 * a[:, 1]
-    crs = bx0 * a[:, 1] - bx1 * a[:, 0]
-    d = np.hypot(a[:, 0], a[:, 1])
-    ok = d > 1e-9
-    dist3 = np.sqrt(np.einsum("ij,ij->i", a, a))
-    nu = n / np.sqrt(np.einsum("ij,ij->i", n, n))[:, None]                        # unit normals
-    a_n = np.einsum("ij,ij->i", a, nu)
-    err = d - rows[:, _DREF]
-    # columns: h, heading error [deg], d, |err|, err^2, incidence [deg], orthogonal offset, 3-D distance
-    stats = np.empty((len(rows), 8))
-    stats[:, 0] = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
-    stats[:, 1] = np.where(ok, np.degrees(np.abs(np.arctan2(crs, dot))), 90.0)
-    stats[:, 2] = d
-    stats[:, 3] = np.abs(err)
-    stats[:, 4] = err * err
-    far = dist3 > 1e-9
-    stats[:, 5] = np.where(far, np.degrees(np.arccos(np.clip(-a_n / np.where(far, dist3, 1.0), -1.0, 1.0))), 90.0)
-    perp = a - a_n[:, None] * nu
-    stats[:, 6] = np.sqrt(np.einsum("ij,ij->i", perp, perp))
-    stats[:, 7] = dist3
-    tot.n_insp = int(np.count_nonzero(insp))
-    if tot.n_insp:
-        si = stats[insp]
-        sums, mins, maxs = si.sum(axis=0), si.min(axis=0), si.max(axis=0)
-        tot.safe = int(np.count_nonzero(si[:, 3] < margin))
-        tot.sum_h, tot.min_h = float(sums[0]), float(mins[0])
-        tot.sum_herr, tot.max_herr = float(sums[1]), float(maxs[1])
-        tot.sum_d, tot.min_d, tot.max_d = float(sums[2]), float(mins[2]), float(maxs[2])
-        tot.max_abs_err, tot.sum_err2 = float(maxs[3]), float(sums[4])
-        tot.sum_inc, tot.max_inc = float(sums[5]), float(maxs[5])
-        tot.sum_o, tot.sum_dist3 = float(sums[6]), float(sums[7])
-    if prev_position is not None:
-        steps = np.diff(x, axis=0, prepend=prev_position[None, :])
-    else:
-        steps = np.diff(x, axis=0)
-    tot.path = float(np.sqrt(np.einsum("ij,ij->i", steps, steps)).sum())
-    col_prev = np.empty(len(rows), dtype=bool)
-    col_prev[0] = prev_collision
-    col_prev[1:] = col[:-1]
-    tot.col_events = int(np.count_nonzero(col & ~col_prev))
-    tot.col_samples = int(np.count_nonzero(col))
-    counts = rows[:, _NEW:_VIS + 1].sum(axis=0)
-    tot.new, tot.vis = int(round(float(counts[0]))), int(round(float(counts[1])))
-    tot.t_first, tot.t_last = float(rows[0, _T]), float(rows[-1, _T])
-    return tot
-
 
 def heading_and_distance(position, quaternion, point) -> tuple[float, float]:
     """The paper's heading function h and horizontal distance d for one sample, in plain floats
-    (a couple of microseconds; for reward shaping - the same definitions as the metrics)."""
+    (~2 us; for reward shaping - the same formulas as the metrics)."""
     ax, ay = float(point[0]) - float(position[0]), float(point[1]) - float(position[1])
     qx, qy, qz, qw = (float(v) for v in quaternion)
     qq = qx * qx + qy * qy + qz * qz + qw * qw
     bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
     bx1 = 2.0 * (qx * qy + qw * qz) / qq
-    d = math.hypot(ax, ay)
+    d = math.sqrt(ax * ax + ay * ay)
     return ((bx0 * ax + bx1 * ay) / d if d > 1e-9 else 0.0), d
 
 
@@ -255,169 +178,234 @@ def _check_n_triangles(n_triangles) -> int | None:
     return int(n_triangles)
 
 
-def _check_rows(rows: np.ndarray, first_index: int) -> None:
-    """Name the first bad field of a block of raw rows."""
-    fields = (("time", slice(0, 1)), ("position", _X), ("quaternion", _Q), ("point", _P), ("normal", _N),
-              ("d_ref", slice(14, 15)), ("n_new", slice(16, 17)), ("n_visible", slice(17, 18)))
-    for name, cols in fields:
-        bad = ~np.all(np.isfinite(rows[:, cols]), axis=1)
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"metrics {name} must be finite, got {rows[i, cols].tolist()} at sample {first_index + i}")
-    for name, cols in (("quaternion", _Q), ("normal", _N)):
-        bad = np.einsum("ij,ij->i", rows[:, cols], rows[:, cols]) < 1e-12
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"metrics {name} must be non-zero, got {rows[i, cols].tolist()} at sample {first_index + i}")
-    for name, col in (("d_ref", _DREF),):
-        bad = rows[:, col] <= 0
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"metrics {name} must be positive, got {rows[i, col]} at sample {first_index + i}")
-    for name, col in (("n_new", _NEW), ("n_visible", _VIS)):
-        bad = rows[:, col] < 0
-        if bad.any():
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"metrics {name} must be >= 0, got {rows[i, col]} at sample {first_index + i}")
-    dt = np.diff(rows[:, _T])
-    if np.any(dt < 0):
-        i = int(np.flatnonzero(dt < 0)[0]) + 1
-        raise ValueError(f"metrics time must be non-decreasing, got {rows[i, _T]} after {rows[i - 1, _T]} "
-                         f"at sample {first_index + i}")
+def _check_count(name: str, value) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"metrics {name} must be a non-negative integer, got {value!r}")
+    return int(value)
 
 
 class MetricAccumulator:
-    """Incremental metrics for the environment: ``add`` one sample per step, ``result()`` any time.
-
-    ``add`` writes one row into a fixed block; full blocks are validated and reduced (vectorised),
-    so the cost per step is a few microseconds and memory does not grow.
-    """
+    """Incremental metrics for the environment: ``add`` one sample per step, ``result()`` any time
+    (O(1), cheap enough for every step's ``info``)."""
 
     def __init__(self, n_triangles: int | None = None, config: MetricsConfig | None = None) -> None:
         self.config = config if config is not None else MetricsConfig()
         if not isinstance(self.config, MetricsConfig):
             raise ValueError(f"config must be a MetricsConfig, got {type(self.config).__name__}")
         self.n_triangles = _check_n_triangles(n_triangles)
-        self._buf = np.zeros((BLOCK, _NCOLS))
         self.reset()
 
     def reset(self) -> None:
-        self._i = 0
         self._tot = _Totals()
-        self._prev_pos: np.ndarray | None = None
+        self._prev: tuple[float, float, float] | None = None
         self._prev_col = False
-        self._last_t = -math.inf
-        self._cached: tuple[int, InspectionMetrics] | None = None
+
+    @property
+    def n_samples(self) -> int:
+        return self._tot.n
 
     def add(self, t: float, position, quaternion, point, normal, *, collision: bool = False, n_new: int = 0,
             n_visible: int = 0, d_ref: float | None = None, inspecting: bool = True) -> None:
         """Record one sample (see the module docstring for the meaning of each input)."""
-        t = float(t)
-        if not t >= self._last_t:   # also catches NaN
-            raise ValueError(f"metrics time must be finite and non-decreasing, got {t} after {self._last_t}")
-        if (np.shape(position) != (3,) or np.shape(quaternion) != (4,) or np.shape(point) != (3,)
-                or np.shape(normal) != (3,)):
-            for name, value, k in (("position", position, 3), ("quaternion", quaternion, 4), ("point", point, 3),
-                                   ("normal", normal, 3)):
-                check_array(f"metrics {name}", value, (k,))
-        row = self._buf[self._i]
-        row[_T] = t
         try:
-            row[_X] = position
-            row[_Q] = quaternion
-            row[_P] = point
-            row[_N] = normal
-        except (ValueError, TypeError):
-            for name, value, k in (("position", position, 3), ("quaternion", quaternion, 4), ("point", point, 3),
-                                   ("normal", normal, 3)):
-                check_array(f"metrics {name}", value, (k,))
+            t = float(t)
+            x0, x1, x2 = (float(v) for v in position)
+            qx, qy, qz, qw = (float(v) for v in quaternion)
+            p0, p1, p2 = (float(v) for v in point)
+            n0, n1, n2 = (float(v) for v in normal)
+            dref = self.config.d_ref if d_ref is None else float(d_ref)
+        except (TypeError, ValueError):
+            self._explain(t, position, quaternion, point, normal, d_ref)
             raise
-        row[_DREF] = self.config.d_ref if d_ref is None else d_ref
-        row[_COL] = 1.0 if collision else 0.0
-        row[_NEW] = n_new
-        row[_VIS] = n_visible
-        row[_INSP] = 1.0 if inspecting else 0.0
-        if (not np.isfinite(row).all() or row[_DREF] <= 0.0 or row[_NEW] < 0.0 or row[_VIS] < 0.0
-                or np.dot(row[_Q], row[_Q]) < 1e-12 or np.dot(row[_N], row[_N]) < 1e-12):
-            _check_rows(row[None, :], self._tot.n + self._i)
-        self._last_t = t
-        self._i += 1
-        if self._i == BLOCK:
-            self._flush()
+        tot = self._tot
+        if not math.isfinite(t + x0 + x1 + x2 + qx + qy + qz + qw + p0 + p1 + p2 + n0 + n1 + n2 + dref):
+            self._explain(t, position, quaternion, point, normal, d_ref)
+        if tot.n and not t >= tot.t_last:
+            raise ValueError(f"metrics time must be non-decreasing, got {t} after {tot.t_last}")
+        new, vis = n_new, n_visible
+        if type(new) is not int or type(vis) is not int or new < 0 or vis < 0:
+            new, vis = _check_count("n_new", n_new), _check_count("n_visible", n_visible)
+        qq = qx * qx + qy * qy + qz * qz + qw * qw
+        nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        if qq < 1e-12 or nn < 1e-6 or dref <= 0.0:
+            self._explain(t, position, quaternion, point, normal, d_ref)
+        # -- all-sample quantities
+        if tot.n == 0:
+            tot.t_first = t
+        else:
+            dx, dy, dz = x0 - self._prev[0], x1 - self._prev[1], x2 - self._prev[2]
+            tot.path += math.sqrt(dx * dx + dy * dy + dz * dz)
+        tot.n += 1
+        tot.t_last = t
+        self._prev = (x0, x1, x2)
+        col = bool(collision)
+        if col:
+            tot.col_samples += 1
+            if not self._prev_col:
+                tot.col_events += 1
+        self._prev_col = col
+        tot.new += new
+        tot.vis += vis
+        if not inspecting:
+            return
+        # -- inspection quantities (the formulas are mirrored, operation for operation, in _batch)
+        ax, ay, az = p0 - x0, p1 - x1, p2 - x2
+        bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
+        bx1 = 2.0 * (qx * qy + qw * qz) / qq
+        dot = bx0 * ax + bx1 * ay
+        crs = bx0 * ay - bx1 * ax
+        d = math.sqrt(ax * ax + ay * ay)
+        if d > 1e-9:
+            h = dot / d
+            herr = RAD2DEG * math.atan2(abs(crs), dot)
+        else:
+            h, herr = 0.0, 90.0
+        u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
+        a_n = ax * u0 + ay * u1 + az * u2
+        dist3 = math.sqrt(ax * ax + ay * ay + az * az)
+        inc = RAD2DEG * math.acos(min(1.0, max(-1.0, -a_n / dist3))) if dist3 > 1e-9 else 90.0
+        o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
+        o = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        err = d - dref
+        abs_err = abs(err)
+        tot.n_insp += 1
+        if abs_err < self.config.safety_margin:
+            tot.safe += 1
+        tot.sum_h += h
+        tot.min_h = min(tot.min_h, h)
+        tot.sum_herr += herr
+        tot.max_herr = max(tot.max_herr, herr)
+        tot.sum_d += d
+        tot.min_d = min(tot.min_d, d)
+        tot.max_d = max(tot.max_d, d)
+        tot.sum_err2 += err * err
+        tot.max_abs_err = max(tot.max_abs_err, abs_err)
+        tot.sum_inc += inc
+        tot.max_inc = max(tot.max_inc, inc)
+        tot.sum_o += o
+        tot.sum_dist3 += dist3
 
-    def _flush(self) -> None:
-        rows = self._buf[:self._i]           # every row was validated by add()
-        self._tot = self._tot.merged(_block_totals(rows, self._prev_pos, self._prev_col, self.config.safety_margin))
-        self._prev_pos = rows[-1, _X].copy()
-        self._prev_col = bool(rows[-1, _COL] > 0.5)
-        self._i = 0
-
-    @property
-    def n_samples(self) -> int:
-        return self._tot.n + self._i
+    def _explain(self, t, position, quaternion, point, normal, d_ref) -> None:
+        """Raise a ValueError naming the bad field (slow path, only on bad input)."""
+        try:
+            tf = float(t)
+        except (TypeError, ValueError):
+            raise ValueError(f"metrics time must be a finite number, got {t!r}") from None
+        if not math.isfinite(tf):
+            raise ValueError(f"metrics time must be finite, got {t!r}")
+        for name, value, k in (("position", position, 3), ("quaternion", quaternion, 4), ("point", point, 3),
+                               ("normal", normal, 3)):
+            arr = check_array(f"metrics {name}", value, (k,))
+            if name in ("quaternion", "normal") and float(arr @ arr) < 1e-12:
+                raise ValueError(f"metrics {name} must be non-zero, got {np.asarray(value).tolist()}")
+        if d_ref is not None:
+            check_positive("metrics d_ref", d_ref)
 
     def result(self) -> InspectionMetrics:
-        """Metrics of everything added since the last reset (does not consume the samples).
+        """Metrics of everything added since the last reset (O(1); does not consume the samples)."""
+        return _finish(self._tot, self.n_triangles, self.config)
 
-        Costs ~50-100 us (it reduces the pending block), so call it at the end of an episode or
-        every few hundred steps; :func:`heading_and_distance` gives per-step values cheaply."""
-        if self._cached is not None and self._cached[0] == self.n_samples:
-            return dataclasses.replace(self._cached[1])
-        rows = self._buf[:self._i]
-        tot = self._tot.merged(_block_totals(rows, self._prev_pos, self._prev_col, self.config.safety_margin))
-        out = _finish(tot, self.n_triangles, self.config)
-        self._cached = (self.n_samples, out)
-        return dataclasses.replace(out)
+
+def _seq_sum(values: np.ndarray) -> float:
+    """Left-to-right sum (what ``+=`` in a loop gives), unlike ``np.sum``'s pairwise order."""
+    return float(np.cumsum(values)[-1]) if len(values) else 0.0
 
 
 def compute_metrics(t, positions, quaternions, points, normals, *, collisions=None, n_new=None, n_visible=None,
                     d_ref=None, inspecting=None, n_triangles: int | None = None,
                     config: MetricsConfig | None = None) -> InspectionMetrics:
-    """Metrics of a whole recorded trajectory of N samples.
+    """Metrics of a whole recorded trajectory of N samples (vectorised; same numbers as
+    :class:`MetricAccumulator` fed the same samples).
 
     ``t`` (N,), ``positions`` (N, 3), ``quaternions`` (N, 4), ``points`` (N, 3), ``normals`` (N, 3);
-    optional ``collisions`` (N,) bool, ``n_new`` / ``n_visible`` (N,) counts, ``d_ref`` scalar or (N,)
-    (default ``config.d_ref``), ``inspecting`` (N,) bool (default all True).
+    optional ``collisions`` (N,) bool, ``n_new`` / ``n_visible`` (N,) non-negative counts, ``d_ref``
+    scalar or (N,) (default ``config.d_ref``), ``inspecting`` (N,) bool (default all True).
     """
     config = config if config is not None else MetricsConfig()
     if not isinstance(config, MetricsConfig):
         raise ValueError(f"config must be a MetricsConfig, got {type(config).__name__}")
     n_tri = _check_n_triangles(n_triangles)
-    T = np.asarray(t, dtype=float)
-    if T.ndim != 1:
-        raise ValueError(f"t must have shape (N,), got shape {T.shape}")
+    T = check_array("t", t, (None,))
     N = len(T)
     X = check_array("positions", positions, (N, 3))
     Q = check_array("quaternions", quaternions, (N, 4))
     P = check_array("points", points, (N, 3))
-    Nn = check_array("normals", normals, (N, 3))
+    Nv = check_array("normals", normals, (N, 3))
 
-    def column(name, value, default):
+    def column(name, value, default, *, counts=False):
         if value is None:
-            return np.full(N, float(default))
-        arr = np.asarray(value, dtype=float)
+            return np.full(N, default)
+        arr = np.asarray(value)
         if arr.ndim == 0:
-            return np.full(N, float(arr))
+            arr = np.full(N, arr)
         if arr.shape != (N,):
             raise ValueError(f"{name} must be a scalar or have shape ({N},), got shape {arr.shape}")
-        return arr
+        if counts:
+            if arr.dtype.kind not in "iub" or np.any(arr < 0):
+                raise ValueError(f"{name} must be non-negative integers, got {arr.dtype} values")
+            return arr.astype(np.int64)
+        return check_array(name, arr, (N,)) if default is not True and default is not False else arr.astype(bool)
 
-    cols = [column("collisions", collisions, 0.0), column("n_new", n_new, 0.0), column("n_visible", n_visible, 0.0),
-            column("d_ref", d_ref, config.d_ref), column("inspecting", inspecting, 1.0)]
-    tot = _Totals()
-    prev_pos, prev_col = None, False
-    rows = np.zeros((BLOCK, _NCOLS))
-    for start in range(0, N, BLOCK):
-        stop = min(N, start + BLOCK)
-        r = rows[:stop - start]
-        r[:, _T] = T[start:stop]
-        r[:, _X], r[:, _Q], r[:, _P], r[:, _N] = X[start:stop], Q[start:stop], P[start:stop], Nn[start:stop]
-        r[:, _COL] = cols[0][start:stop] > 0.5
-        r[:, _NEW], r[:, _VIS], r[:, _DREF] = cols[1][start:stop], cols[2][start:stop], cols[3][start:stop]
-        r[:, _INSP] = cols[4][start:stop] > 0.5
-        _check_rows(r, start)
-        if start and r[0, _T] < T[start - 1]:
-            raise ValueError(f"metrics time must be non-decreasing, got {r[0, _T]} after {T[start - 1]} at sample {start}")
-        tot = tot.merged(_block_totals(r, prev_pos, prev_col, config.safety_margin))
-        prev_pos, prev_col = r[-1, _X].copy(), bool(r[-1, _COL] > 0.5)
+    col = column("collisions", collisions, False)
+    new = column("n_new", n_new, 0, counts=True)
+    vis = column("n_visible", n_visible, 0, counts=True)
+    dref = column("d_ref", d_ref, float(config.d_ref))
+    insp = column("inspecting", inspecting, True)
+    if np.any(dref <= 0):
+        raise ValueError(f"d_ref must be positive, got {dref[dref <= 0][0]}")
+    if np.any(np.diff(T) < 0):
+        i = int(np.flatnonzero(np.diff(T) < 0)[0]) + 1
+        raise ValueError(f"metrics time must be non-decreasing, got {T[i]} after {T[i - 1]} at sample {i}")
+    qx, qy, qz, qw = Q.T
+    qq = qx * qx + qy * qy + qz * qz + qw * qw
+    n0, n1, n2 = Nv.T
+    nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    for name, bad in (("quaternions", qq < 1e-12), ("normals", nn < 1e-6)):
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"metrics {name} must be non-zero, got {(Q if name == 'quaternions' else Nv)[i].tolist()} "
+                             f"at sample {i}")
+    tot = _Totals(n=N)
+    if N:
+        tot.t_first, tot.t_last = float(T[0]), float(T[-1])
+        dX = np.diff(X, axis=0)
+        tot.path = _seq_sum(np.sqrt(dX[:, 0] * dX[:, 0] + dX[:, 1] * dX[:, 1] + dX[:, 2] * dX[:, 2]))
+        prev = np.concatenate([[False], col[:-1]])
+        tot.col_events = int(np.count_nonzero(col & ~prev))
+        tot.col_samples = int(np.count_nonzero(col))
+        tot.new, tot.vis = int(new.sum()), int(vis.sum())
+    sel = np.flatnonzero(insp)
+    tot.n_insp = len(sel)
+    if len(sel):
+        x0, x1, x2 = X[sel].T
+        p0, p1, p2 = P[sel].T
+        qx, qy, qz, qw, qq = qx[sel], qy[sel], qz[sel], qw[sel], qq[sel]
+        n0, n1, n2, nn = n0[sel], n1[sel], n2[sel], nn[sel]
+        ax, ay, az = p0 - x0, p1 - x1, p2 - x2
+        bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
+        bx1 = 2.0 * (qx * qy + qw * qz) / qq
+        dot = bx0 * ax + bx1 * ay
+        crs = bx0 * ay - bx1 * ax
+        d = np.sqrt(ax * ax + ay * ay)
+        ok = d > 1e-9
+        h = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
+        herr = np.array([RAD2DEG * math.atan2(c, v) if k else 90.0
+                         for c, v, k in zip(np.abs(crs).tolist(), dot.tolist(), ok.tolist())])
+        u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
+        a_n = ax * u0 + ay * u1 + az * u2
+        dist3 = np.sqrt(ax * ax + ay * ay + az * az)
+        far = dist3 > 1e-9
+        cosi = np.minimum(1.0, np.maximum(-1.0, -a_n / np.where(far, dist3, 1.0)))
+        inc = np.array([RAD2DEG * math.acos(c) if k else 90.0 for c, k in zip(cosi.tolist(), far.tolist())])
+        o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
+        o = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        err = d - dref[sel]
+        abs_err = np.abs(err)
+        tot.safe = int(np.count_nonzero(abs_err < config.safety_margin))
+        tot.sum_h, tot.min_h = _seq_sum(h), float(h.min())
+        tot.sum_herr, tot.max_herr = _seq_sum(herr), float(herr.max())
+        tot.sum_d, tot.min_d, tot.max_d = _seq_sum(d), float(d.min()), float(d.max())
+        tot.sum_err2, tot.max_abs_err = _seq_sum(err * err), float(abs_err.max())
+        tot.sum_inc, tot.max_inc = _seq_sum(inc), float(inc.max())
+        tot.sum_o, tot.sum_dist3 = _seq_sum(o), _seq_sum(dist3)
     return _finish(tot, n_tri, config)
