@@ -284,11 +284,15 @@ def test_seeded_runs_repeat_exactly():
     a, b, c = run_episode(1), run_episode(1), run_episode(2)
     np.testing.assert_array_equal(a, b)
     assert np.abs(a - c).max() > 1e-3
-    # The same simulator, reset with the same seed, replays too.
-    with QuadrotorSim(M100, SimConfig(), wind=DrydenWind(mean_speed=6.0, altitude=30.0)) as sim:
+    # The same simulator, reset with the same seed, replays too; without a seed the wind keeps
+    # its seed (the owner of the field reseeds it, as the environment does).
+    wind = DrydenWind(mean_speed=6.0, altitude=30.0)
+    with QuadrotorSim(M100, SimConfig(), wind=wind) as sim:
+        assert sim.wind is wind
         np.testing.assert_array_equal(run_episode(1, sim=sim), a)
-        unseeded = run_episode(None, sim=sim)          # continues the stream: new gusts
-        assert np.abs(unseeded - a).max() > 1e-3
+        np.testing.assert_array_equal(run_episode(None, sim=sim), a)
+        wind.reset(2)
+        np.testing.assert_array_equal(run_episode(None, sim=sim), c)
 
 
 def test_two_simulators_are_independent():
@@ -339,6 +343,15 @@ def test_obstacle_mesh_contacts_replacement_and_ray_casts():
         for _ in range(100):
             sim.step([0, 0, 0, M100.weight])
             assert not sim.in_collision
+
+
+def test_enable_gui_without_display_is_a_clear_error(monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.setattr("sys.platform", "linux")
+    with QuadrotorSim(M100, SimConfig()) as sim:
+        with pytest.raises(RuntimeError, match="display"):
+            sim.enable_gui()
+        sim.step([0, 0, 0, M100.weight])          # still usable
 
 
 # ----------------------------------------------------------------------------- bad input

@@ -26,8 +26,9 @@ exactly the paper's model (:mod:`~wt_inspect_env.dynamics`), which the agreement
 """
 from __future__ import annotations
 
-import copy
 import math
+import os
+import sys
 from dataclasses import dataclass
 from typing import Any
 
@@ -112,10 +113,11 @@ class QuadrotorSim:
             raise ValueError(f"config must be a SimConfig, got {config!r}")
         self.params = params
         self.config = config
-        # A private copy: two simulators never share a random wind process.
-        self.wind: WindField | None = None if wind is None else copy.deepcopy(make_wind(wind))
+        # The field is used as given (not copied): its owner, e.g. the environment, may reseed it.
+        # Simulators stepped independently should not share a random field object.
+        self.wind: WindField | None = None if wind is None else make_wind(wind)
         self._client = -1
-        self._rng: np.random.Generator | None = None
+        self._gui = False
 
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
@@ -142,16 +144,31 @@ class QuadrotorSim:
                            if config.drag else (0.0,) * 3)
         self._has_drag = config.drag and (any(self._lin_drag) or any(self._quad_drag))
 
-        cid = p.connect(p.DIRECT)
-        if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients
-            raise RuntimeError("PyBullet could not create a DIRECT client")
-        self._client = cid
+        self._obstacle_arrays: tuple[list, list] | None = (
+            None if obstacles is None else _mesh_arrays(obstacles))
+        self._last_wind = np.zeros(3)
+        self._contacts: list[dict] = []
+        self._build_world(p.DIRECT)
         try:  # never leak the client when the rest of the set-up rejects its input
+            self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
+        except BaseException:
+            self.close()
+            raise
+
+    def _build_world(self, mode: int) -> None:
+        """Connect a client of the given mode and create drone, ground and obstacles in it."""
+        params, config = self.params, self.config
+        cid = p.connect(mode)
+        if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients / no display
+            raise RuntimeError("PyBullet could not create a client")
+        self._client = cid
+        try:
             p.resetSimulation(physicsClientId=cid)
             p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
             p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
                                         deterministicOverlappingPairs=1, physicsClientId=cid)
-            shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
+            shape = p.createCollisionShape(p.GEOM_BOX,
+                                           halfExtents=list(params.collision_half_extents),
                                            physicsClientId=cid)
             self._body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape,
                                            basePosition=[0, 0, 1], physicsClientId=cid)
@@ -162,18 +179,39 @@ class QuadrotorSim:
             self._ground = -1
             if config.ground:
                 plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
-                self._ground = p.createMultiBody(0.0, plane, basePosition=[0, 0, config.ground_height],
+                self._ground = p.createMultiBody(0.0, plane,
+                                                 basePosition=[0, 0, config.ground_height],
                                                  physicsClientId=cid)
             self._obstacle = -1
             self._obstacle_shape = -1
-            if obstacles is not None:
-                self.set_obstacles(obstacles)
-            self._last_wind = np.zeros(3)
-            self._contacts: list[dict] = []
-            self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
+            if self._obstacle_arrays is not None:
+                self._create_obstacle(*self._obstacle_arrays)
         except BaseException:
             self.close()
             raise
+
+    def enable_gui(self) -> None:
+        """Move the simulation into a PyBullet GUI window (one per process; needs a display).
+
+        The world is rebuilt in a new GUI client and the drone keeps its state; :attr:`client`
+        changes, so call this before handing the client id to other modules.
+        """
+        self._check_open()
+        if self._gui:
+            return
+        if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            raise RuntimeError("enable_gui needs a display (DISPLAY is not set)")
+        state, rates, steps = self.state, self.body_rates, self._steps
+        f, thrust = list(self._f), self._thrust
+        ctrl = self.rate_controller
+        saved = (list(ctrl.i), list(ctrl.d), list(ctrl.prev))
+        p.disconnect(physicsClientId=self._client)
+        self._client = -1
+        self._build_world(p.GUI)
+        self._gui = True
+        self._place(state, rates)
+        self._steps, self._f, self._thrust = steps, f, thrust
+        ctrl.i, ctrl.d, ctrl.prev = saved
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -213,15 +251,18 @@ class QuadrotorSim:
     def set_obstacles(self, mesh: Any) -> None:
         """Replace the static obstacle (turbine) collision mesh; ``None`` removes it."""
         self._check_open()
+        arrays = None if mesh is None else _mesh_arrays(mesh)
         cid = self._client
-        if mesh is not None:
-            verts, idx = _mesh_arrays(mesh)
         if self._obstacle >= 0:
             p.removeBody(self._obstacle, physicsClientId=cid)
             p.removeCollisionShape(self._obstacle_shape, physicsClientId=cid)
             self._obstacle = self._obstacle_shape = -1
-        if mesh is None:
-            return
+        self._obstacle_arrays = arrays
+        if arrays is not None:
+            self._create_obstacle(*arrays)
+
+    def _create_obstacle(self, verts: list, idx: list) -> None:
+        cid = self._client
         shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
                                        flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
         if shape < 0:  # pragma: no cover
@@ -243,8 +284,10 @@ class QuadrotorSim:
         """Place the drone at ``state`` = [p, v_body, q] (model convention) and restart time.
 
         ``body_rates`` (3,) default to zero. The rotors start at hover thrust (m g / 4 each) and the
-        rate-loop integrators at zero. ``seed`` reseeds the simulator's Generator, from which the
-        wind field draws a fresh seed at every reset (so ``seed=None`` continues the stream).
+        rate-loop integrators at zero. ``seed`` (if given) reseeds the wind field with
+        ``wind.reset(seed)``; without it the field keeps its seed, and since random fields are
+        functions of time from their seed, the same gusts replay. (An environment that owns the
+        wind reseeds it itself; it need not pass a seed here.)
         """
         self._check_open()
         x = check_array("state", state, (10,))
@@ -252,30 +295,33 @@ class QuadrotorSim:
         nq = float(np.linalg.norm(q))
         if abs(nq - 1.0) > 1e-3:
             raise ValueError(f"state quaternion must have unit norm, got norm {nq:.6g} ({q.tolist()})")
-        q = q / nq
+        x = x.copy()
+        x[6:10] = q / nq
         w_b = np.zeros(3) if body_rates is None else check_array("body_rates", body_rates, (3,))
-        if seed is not None or self._rng is None:
-            if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
-                                     or seed < 0):
+        if seed is not None:
+            if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
                 raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
-            self._rng = np.random.default_rng(seed)
-        if self.wind is not None:
-            self.wind.reset(int(self._rng.integers(2**63 - 1)))
-        R = np.array(p.getMatrixFromQuaternion(q.tolist())).reshape(3, 3)
-        cid = self._client
-        p.resetBasePositionAndOrientation(self._body, x[0:3].tolist(), q.tolist(),
-                                          physicsClientId=cid)
-        p.resetBaseVelocity(self._body, (R @ x[3:6]).tolist(), (R @ w_b).tolist(),
-                            physicsClientId=cid)
+            if self.wind is not None:
+                self.wind.reset(int(seed))
+        self._place(x, w_b)
         self._steps = 0
         self.rate_controller.reset(w_b.tolist())
         self._f = [self.params.weight / 4.0] * 4
         self._thrust = self.params.weight          # rate_loop=False: lagged collective
         self._contacts = []
         self._in_collision = False
-        self._fetch()
         self._last_wind = self._wind_at(0.0)
         self._const_wind = self.wind is None or self.wind.is_constant
+
+    def _place(self, x: np.ndarray, w_b: np.ndarray) -> None:
+        """Set pose and velocities in PyBullet from a model state and body rates."""
+        cid = self._client
+        q = x[6:10].tolist()
+        R = np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3)
+        p.resetBasePositionAndOrientation(self._body, x[0:3].tolist(), q, physicsClientId=cid)
+        p.resetBaseVelocity(self._body, (R @ x[3:6]).tolist(), (R @ w_b).tolist(),
+                            physicsClientId=cid)
+        self._fetch()
 
     def _fetch(self) -> None:
         cid = self._client
