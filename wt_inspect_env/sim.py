@@ -9,20 +9,22 @@ thrust [N]) for ``1 / ctrl_hz`` and runs ``physics_hz / ctrl_hz`` physics sub-st
 
 1. the PX4-like rate PID (:mod:`~wt_inspect_env.rate_control`) turns the rate error into body
    torques, the mixer turns thrust + torques into four rotor thrusts within their limits;
-2. the rotors follow their commands through a first-order lag (exact discretisation);
+2. the rotors follow their commands through a first-order lag (exact discretisation; the force
+   applied over a sub-step is the lagged thrust's mean over it, so impulses are right to O(dt^2));
 3. the rotor thrusts act along body +z at the rotor positions, the yaw torque is
    ``-spin * torque_coeff * f`` per rotor (the wrench is ``params.mixer @ f``);
 4. wind acts through relative-airspeed drag in body axes: ``-D v_rel - 1/2 rho CdA |v_rel| v_rel``
    with ``v_rel = R^T (v - v_wind)``; the wind is evaluated once per control step at the drone;
-5. PyBullet integrates the rigid body (default damping off so it matches the model) and contacts.
+5. PyBullet integrates the rigid body (default damping off so it matches the model); contacts with
+   the ground or the obstacles are collected after every sub-step.
 
 By default the rotor forces are applied as their resultant: one force at the centre of mass plus
 one torque (identical rigid-body dynamics, fewer PyBullet calls); ``SimConfig(per_rotor_forces=True)``
 applies the four forces at the rotor positions instead, and a test checks both agree.
 
 ``SimConfig(rate_loop=False)`` bypasses the rate loop: the commanded body rates are imposed
-directly on the body at every sub-step and the collective thrust acts at the centre of mass. That is
-exactly the paper's model (:mod:`~wt_inspect_env.dynamics`), which the agreement test relies on.
+directly on the body at every sub-step (with the gyroscopic torque cancelled so they stay constant
+through it) and the collective thrust acts at the centre of mass. That is exactly the paper's model (:mod:`~wt_inspect_env.dynamics`), which the agreement test relies on.
 """
 from __future__ import annotations
 
