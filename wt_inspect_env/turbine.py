@@ -177,7 +177,7 @@ class TurbineSpec:
     facing_deg: float = 90.0
     hub_radius: float | None = None
     overhang: float | None = None
-    tower_radius: float = 2.0
+    tower_radius: float = 1.5
     mesh_step: float = 1.5
 
     def __post_init__(self) -> None:

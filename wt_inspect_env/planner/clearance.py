@@ -1,0 +1,178 @@
+"""Clearance: exact distances from points to the turbine, and collision-free transit routes.
+
+:class:`DistanceField` answers "how far is each point from the nearest triangle, up to
+``max_distance``" exactly (closest point on each candidate triangle, Ericson's region test), using
+a KD-tree on triangle centroids to find candidates: a triangle within ``r`` of a point has its
+centroid within ``r + rho`` (``rho`` = centroid-to-vertex radius). The few large triangles (tower
+caps, triangles of a coarse loaded mesh) are checked exhaustively instead of inflating the search
+radius for all.
+
+:class:`Clearance` checks sampled stand-off paths against a required clearance and finds transit
+routes: the straight segment if it is clear, otherwise the shortest clear detour through one or
+two via points placed around the segment along the turbine's frame axes (rotor axis, vertical,
+lateral and their diagonals) at growing offsets. A path is sampled every ``step`` and each sample
+must clear ``clearance + step / 2``, so the continuous path between samples clears ``clearance``.
+"""
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+
+def closest_points_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Closest point on triangle ``(a[i], b[i], c[i])`` to ``p[i]`` (all ``(K, 3)``)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1 = np.einsum("ij,ij->i", ab, ap)
+    d2 = np.einsum("ij,ij->i", ac, ap)
+    bp = p - b
+    d3 = np.einsum("ij,ij->i", ab, bp)
+    d4 = np.einsum("ij,ij->i", ac, bp)
+    cp = p - c
+    d5 = np.einsum("ij,ij->i", ab, cp)
+    d6 = np.einsum("ij,ij->i", ac, cp)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        v_in = vb / denom
+        w_in = vc / denom
+        out = a + ab * v_in[:, None] + ac * w_in[:, None]                    # interior
+        bc_w = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out = np.where(((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0))[:, None],
+                       b + (c - b) * bc_w[:, None], out)                      # edge BC
+        ac_w = d2 / (d2 - d6)
+        out = np.where(((vb <= 0) & (d2 >= 0) & (d6 <= 0))[:, None], a + ac * ac_w[:, None], out)  # edge AC
+        out = np.where(((d6 >= 0) & (d5 <= d6))[:, None], c, out)                                  # vertex C
+        ab_v = d1 / (d1 - d3)
+        out = np.where(((vc <= 0) & (d1 >= 0) & (d3 <= 0))[:, None], a + ab * ab_v[:, None], out)  # edge AB
+        out = np.where(((d3 >= 0) & (d4 <= d3))[:, None], b, out)                                  # vertex B
+        out = np.where(((d1 <= 0) & (d2 <= 0))[:, None], a, out)                                   # vertex A
+    return out
+
+
+class DistanceField:
+    """Exact point-to-mesh distances (capped at a query radius) for a fixed set of triangles."""
+
+    def __init__(self, triangles: np.ndarray) -> None:
+        tris = np.asarray(triangles, dtype=np.float64).reshape(-1, 3, 3)
+        if len(tris) == 0:
+            raise ValueError("DistanceField needs at least one triangle")
+        cent = tris.mean(axis=1)
+        rho = np.linalg.norm(tris - cent[:, None], axis=2).max(axis=1)
+        cut = 3.0 * float(np.median(rho))
+        small = rho <= cut
+        self._small = tris[small]
+        self._big = tris[~small]
+        self._rho_small = float(rho[small].max())
+        self._tree = cKDTree(cent[small])
+
+    def distance(self, points: np.ndarray, max_distance: float) -> np.ndarray:
+        """Distance of each point to the mesh, exact below ``max_distance`` (else ``max_distance``)."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(pts), float(max_distance))
+        if len(pts) == 0:
+            return out
+        pairs = self._tree.sparse_distance_matrix(cKDTree(pts), max_distance + self._rho_small,
+                                                  output_type="ndarray")
+        if len(pairs):
+            ti, pi = pairs["i"], pairs["j"]
+            t = self._small[ti]
+            d = np.linalg.norm(pts[pi] - closest_points_on_triangles(pts[pi], t[:, 0], t[:, 1], t[:, 2]), axis=1)
+            np.minimum.at(out, pi, d)
+        if len(self._big):
+            chunk = max(1, 200_000 // len(self._big))
+            for s in range(0, len(pts), chunk):
+                P = pts[s:s + chunk]
+                k, m = len(P), len(self._big)
+                Pr = np.repeat(P, m, axis=0)
+                B = np.tile(self._big, (k, 1, 1))
+                d = np.linalg.norm(Pr - closest_points_on_triangles(Pr, B[:, 0], B[:, 1], B[:, 2]), axis=1)
+                out[s:s + chunk] = np.minimum(out[s:s + chunk], d.reshape(k, m).min(axis=1))
+        return out
+
+
+def sample_polyline(poly: np.ndarray, step: float) -> np.ndarray:
+    """Points along a polyline, at most ``step`` apart, including every vertex."""
+    poly = np.asarray(poly, dtype=np.float64)
+    out = [poly[:1]]
+    for a, b in zip(poly[:-1], poly[1:]):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / step)))
+        t = np.arange(1, n + 1)[:, None] / n
+        out.append(a + t * (b - a))
+    return np.concatenate(out)
+
+
+def polyline_length(poly: np.ndarray) -> float:
+    return float(np.linalg.norm(np.diff(poly, axis=0), axis=1).sum())
+
+
+class NoRouteError(RuntimeError):
+    """No collision-free transit was found between two stand-off positions."""
+
+
+class Clearance:
+    """Clearance checks and transit routing around one rotor configuration."""
+
+    def __init__(self, field: DistanceField, clearance: float, step: float, frame: np.ndarray,
+                 offsets: tuple[float, ...]) -> None:
+        self.field = field
+        self.clearance = clearance
+        self.step = step
+        self.required = clearance + step / 2.0
+        axes = np.asarray(frame, dtype=np.float64)          # rows: rotor axis, vertical, lateral
+        dirs = []
+        for coeffs in itertools.product((-1, 0, 1), repeat=3):
+            if any(coeffs):
+                v = np.asarray(coeffs, dtype=np.float64) @ axes
+                dirs.append(v / np.linalg.norm(v))
+        self.directions = np.array(dirs)
+        self.offsets = tuple(offsets)
+
+    def distances(self, points: np.ndarray) -> np.ndarray:
+        """Distances capped just above the required clearance (cheap: few candidate triangles)."""
+        return self.field.distance(points, self.required + 1e-6)
+
+    def is_clear(self, points: np.ndarray) -> bool:
+        return bool(np.all(self.distances(points) >= self.required))
+
+    def polyline_clear(self, poly: np.ndarray) -> bool:
+        return self.is_clear(sample_polyline(poly, self.step))
+
+    def route(self, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:
+        """Shortest clear polyline ``qa -> qb`` among the straight line and the candidate detours."""
+        qa, qb = np.asarray(qa, float), np.asarray(qb, float)
+        straight = np.stack([qa, qb])
+        if self.polyline_clear(straight):
+            return straight
+        mid = 0.5 * (qa + qb)
+        cands: list[np.ndarray] = []
+        for off in self.offsets:
+            for d in self.directions:
+                for base in (mid, qa, qb):
+                    cands.append(np.stack([qa, base + off * d, qb]))
+                cands.append(np.stack([qa, qa + off * d, qb + off * d, qb]))
+        lengths = np.array([polyline_length(c) for c in cands])
+        # via points must themselves be clear; test them all at once before any segment
+        vias = np.concatenate([c[1:-1] for c in cands])
+        ok_via = self.distances(vias) >= self.required
+        counts = np.array([len(c) - 2 for c in cands])
+        ok = np.add.reduceat(ok_via.astype(int), np.r_[0, np.cumsum(counts)[:-1]]) == counts
+        seg_cache: dict[tuple, bool] = {}
+
+        def seg_ok(a: np.ndarray, b: np.ndarray) -> bool:
+            key = (tuple(np.round(a, 9)), tuple(np.round(b, 9)))
+            if key not in seg_cache:
+                seg_cache[key] = self.polyline_clear(np.stack([a, b]))
+            return seg_cache[key]
+
+        for i in np.argsort(lengths, kind="stable"):
+            if not ok[i]:
+                continue
+            c = cands[i]
+            if all(seg_ok(c[j], c[j + 1]) for j in range(len(c) - 1)):
+                return c
+        raise NoRouteError(f"no collision-free transit from {np.round(qa, 2).tolist()} to "
+                           f"{np.round(qb, 2).tolist()} with clearance {self.clearance} m")

@@ -1,0 +1,85 @@
+"""Planner configuration (validated on construction)."""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+from ..validation import check_array, check_choice, check_positive, check_range, check_unknown_options
+
+STANDOFF_MODES = ("horizontal", "normal")
+
+
+@dataclass(frozen=True)
+class PlannerConfig:
+    """Options of :func:`~wt_inspect_env.planner.plan_inspection` (SI units, degrees as named).
+
+    standoff
+        d_ref: distance from the inspection point to the drone (the paper's 7 m).
+    standoff_mode
+        ``"horizontal"`` (default): the stand-off position is ``p + d_ref n_xy / |n_xy|``, the pose
+        that VT-NMPC (horizontal distance d and region of interest r = a_xy . n with n_z forced to
+        0) and the baselines track, so tour lengths and clearances are those of the flight.
+        ``"normal"``: ``p + d_ref n`` along the 3-D normal, the issue's literal wording; identical
+        for the vertical faces of a blade, different for tilted faces.
+    spacing
+        Distance between consecutive path samples, measured along the stand-off (drone) path.
+    start
+        Take-off point; ``None``: on the ground in front of the rotor, below the front faces'
+        stand-off plane.
+    rotor_turn_deg
+        Rotor turn between phase 1 and phase 2 (right-handed about the rotor axis).
+    max_down_deg, max_up_deg
+        A level camera inspects a surface in a phase only if its normal's elevation lies in
+        ``[-max_down_deg, max_up_deg]``; other surfaces are deferred to phase 2 (the inverted Y's
+        two faces looking 60 deg down, whose stand-offs would lie under the rotor, inside the
+        other lower blade). Surfaces still outside the band after the turn are an error.
+    clearance
+        Minimum distance from every stand-off position of the path to the turbine (blades, hub,
+        tower); transitions detour to keep it, inspection stand-offs that violate it are an error.
+    check_step
+        Sampling step of the clearance checks along the stand-off path (each sample must clear
+        ``clearance + check_step / 2``, which makes the continuous path clear ``clearance``).
+    cluster_angle_deg
+        Normals of touching triangles within this angle belong to the same surface.
+    """
+
+    standoff: float = 7.0
+    spacing: float = 0.1
+    start: tuple[float, float, float] | None = None
+    rotor_turn_deg: float = 120.0
+    max_down_deg: float = 45.0
+    max_up_deg: float = 75.0
+    clearance: float = 2.0
+    check_step: float = 0.25
+    standoff_mode: str = "horizontal"
+    cluster_angle_deg: float = 20.0
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        put("standoff", check_positive("standoff", self.standoff))
+        put("spacing", check_positive("spacing", self.spacing))
+        if not 1e-3 <= self.spacing <= self.standoff:
+            raise ValueError(f"spacing must lie in [0.001, standoff={self.standoff}] m, got {self.spacing!r}")
+        if self.start is not None:
+            s = check_array("start", self.start, (3,))
+            put("start", (float(s[0]), float(s[1]), float(s[2])))
+        put("rotor_turn_deg", check_range("rotor_turn_deg", self.rotor_turn_deg, -360.0, 360.0))
+        put("max_down_deg", check_range("max_down_deg", self.max_down_deg, 0.0, 89.0))
+        put("max_up_deg", check_range("max_up_deg", self.max_up_deg, 0.0, 89.0))
+        put("clearance", check_positive("clearance", self.clearance))
+        if self.clearance >= self.standoff:
+            raise ValueError(f"clearance must be below standoff ({self.standoff}), got {self.clearance!r}")
+        put("check_step", check_positive("check_step", self.check_step))
+        if self.check_step > self.clearance:
+            raise ValueError(f"check_step must not exceed clearance ({self.clearance}), got {self.check_step!r}")
+        check_choice("standoff_mode", self.standoff_mode, STANDOFF_MODES)
+        put("cluster_angle_deg", check_range("cluster_angle_deg", self.cluster_angle_deg, 1.0, 60.0))
+
+    @classmethod
+    def from_options(cls, options: Mapping[str, Any], base: "PlannerConfig | None" = None) -> "PlannerConfig":
+        """``base`` (or the defaults) with ``options`` replaced; unknown keys raise ``ValueError``."""
+        check_unknown_options("planner", options.keys(), [f.name for f in dataclasses.fields(cls)])
+        return dataclasses.replace(base, **options) if base is not None else cls(**dict(options))
