@@ -22,7 +22,9 @@ v_pt_B is the inspection point's velocity expressed in the body frame of the mea
 formula omits it but its reference 1 needs it) and uses the full attitude rather than the authors'
 yaw-only approximation. The thrust reference is the hover thrust m g of the one parameter set
 (the authors' 44.6 N was a bug). Online parameters per solve: the point p, the normal n (n_z
-forced to 0 and renormalised) and v_pt_B: ``params = [p (3), n_x, n_y, v_pt_B (3)]``.
+forced to 0 and renormalised), v_pt_B and a world-frame disturbance acceleration a_ext of the
+model (zero unless the optional disturbance observer is on):
+``params = [p (3), n_x, n_y, v_pt_B (3), a_ext (3)]``.
 
 Horizon N = 30 at 0.01 s, RK4 multiple shooting, |p|, |q|, |r| <= 100 deg/s and
 0.3 m g <= T <= 2 m g (the environment's action bounds, from :class:`ActionScaling`).
@@ -43,7 +45,7 @@ from wt_inspect_env.validation import check_choice, check_finite, check_positive
 from .policy import Policy, check_observation
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
-N_PARAMS = 8
+N_PARAMS = 11
 BACKENDS = ("rti", "ipopt")
 STAGE_RESIDUAL_NAMES = ("h", "d", "r", "o", "u", "v", "w", "qx", "qy", "p", "q", "r_rate", "T")
 TERMINAL_RESIDUAL_NAMES = ("u", "v", "w", "qx", "qy")
@@ -123,7 +125,12 @@ class VTNMPCConfig:
     or the name of a set in :data:`WEIGHT_SETS`; ``norm_eps`` is the guard (m^2) inside every
     norm; ``scaling`` defaults to the environment's action scaling of ``params``. ``backend``
     ``"rti"`` is the real-time iteration; ``"ipopt"`` solves every step to convergence with
-    IPOPT (warm-started) - the slow reference of the benchmark."""
+    IPOPT (warm-started) - the slow reference of the benchmark. ``disturbance_observer`` (off in
+    the paper) estimates a world-frame disturbance acceleration from the gap between measured and
+    predicted velocity (first-order filter, ``observer_time_constant``) and feeds it to the
+    prediction model - the "disturbance force estimate" input the authors' code had but did not
+    use - and to the attitude reference (level with respect to the apparent gravity, see
+    :func:`attitude_residual`); it removes most of the offset that wind drag otherwise causes."""
 
     params: QuadrotorParams = field(default_factory=_default_params)
     weights: VTNMPCWeights | str = "paper"
@@ -135,6 +142,8 @@ class VTNMPCConfig:
     scaling: ActionScaling | None = None
     solver: RTIOptions = field(default_factory=RTIOptions)
     backend: str = "rti"
+    disturbance_observer: bool = False
+    observer_time_constant: float = 0.3
 
     def __post_init__(self) -> None:
         if not isinstance(self.params, QuadrotorParams):
@@ -159,6 +168,9 @@ class VTNMPCConfig:
         if not isinstance(self.solver, RTIOptions):
             raise ValueError(f"solver must be RTIOptions, got {self.solver!r}")
         check_choice("backend", self.backend, BACKENDS)
+        if not isinstance(self.disturbance_observer, bool):
+            raise ValueError(f"disturbance_observer must be a bool, got {self.disturbance_observer!r}")
+        check_positive("observer_time_constant", self.observer_time_constant)
 
     @property
     def hover_input(self) -> np.ndarray:
@@ -179,6 +191,24 @@ def visual_terms(x, params, eps: float):
     return ca.vertcat(heading, d, roi, orth)
 
 
+def attitude_residual(q, a_ext):
+    """(qx, qy) residual: zero at a level attitude when ``a_ext`` = 0 (the paper's x* reference).
+
+    With a disturbance acceleration ``a_ext`` (world) the hover attitude is tilted so that the
+    body z axis points along z_d = (0, 0, g) - a_ext. That attitude with the drone's own yaw psi is
+    q_t (x) q_psi, where q_t = normalise([e_z x z_d, 1 + e_z . z_d]) = (t_x, t_y, 0, t_w); its
+    x/y components are (t_x qw + t_y qz, t_y qw - t_x qz) / t_w in terms of the state's own
+    (qz, qw) = t_w (sin psi/2, cos psi/2). For a_ext = 0, t = (0, 0, 0, 1): exactly (qx, qy).
+    """
+    z = ca.vertcat(-a_ext[0], -a_ext[1], GRAVITY - a_ext[2])
+    z = z / ca.norm_2(z)   # |z| >= g - |a_ext| > 0: the observer bounds |a_ext| below g
+    t = ca.vertcat(-z[1], z[0], 1 + z[2])
+    t = t / ca.norm_2(t)   # 1 + z_z > 0 for tilts below 90 deg
+    tx, ty, tw = t[0], t[1], t[2]
+    qx, qy, qz, qw = q[0], q[1], q[2], q[3]
+    return ca.vertcat(qx - (tx * qw + ty * qz) / tw, qy - (ty * qw - tx * qz) / tw)
+
+
 def residual_functions(config: VTNMPCConfig) -> tuple[ca.Function, ca.Function]:
     """(stage_residual(x, u, params), terminal_residual(x, params)), zero at the references."""
     x = ca.SX.sym("x", NX)
@@ -186,7 +216,7 @@ def residual_functions(config: VTNMPCConfig) -> tuple[ca.Function, ca.Function]:
     p = ca.SX.sym("p", N_PARAMS)
     vis = visual_terms(x, p, config.norm_eps)
     vis_res = vis - ca.vertcat(1.0, config.d_ref, -config.d_ref, 0.0)
-    x_star = ca.vertcat(x[3:6] - p[5:8], x[6], x[7])
+    x_star = ca.vertcat(x[3:6] - p[5:8], attitude_residual(x[6:10], p[8:11]))
     u_res = u - ca.DM(config.hover_input)
     stage = ca.Function("vtnmpc_r", [x, u, p], [ca.vertcat(vis_res, x_star, u_res)],
                         ["x", "u", "p"], ["r"])
@@ -201,8 +231,8 @@ def build_ocp(config: VTNMPCConfig) -> OCP:
     u = ca.SX.sym("u", NU)
     p = ca.SX.sym("p", N_PARAMS)
     F = ca.Function("vtnmpc_F", [x, u, p],
-                    [model.rk4_expr(x, u, config.dt, steps=config.rk4_steps)], ["x", "u", "p"],
-                    ["x_next"])
+                    [model.rk4_expr(x, u, config.dt, a_ext=p[8:11], steps=config.rk4_steps)],
+                    ["x", "u", "p"], ["x_next"])
     stage, terminal = residual_functions(config)
     return OCP(name="vtnmpc", dynamics=F, stage_residual=stage, terminal_residual=terminal,
                horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
@@ -229,11 +259,14 @@ def horizontal_normal(normal: np.ndarray, fallback: np.ndarray | None) -> np.nda
 
 
 def vtnmpc_parameters(state: np.ndarray, point: np.ndarray, normal_xy: np.ndarray,
-                      point_velocity_world: np.ndarray) -> np.ndarray:
-    """Online parameter vector: point, horizontal normal, point velocity in the body frame."""
+                      point_velocity_world: np.ndarray,
+                      disturbance_accel: np.ndarray | None = None) -> np.ndarray:
+    """Online parameter vector: point, horizontal normal, point velocity in the body frame of
+    ``state``'s attitude, world-frame disturbance acceleration of the model (zero by default)."""
     R = quat_to_rotmat_np(state[6:10])
     v_body = R.T @ np.asarray(point_velocity_world, dtype=float)
-    return np.concatenate([point, normal_xy, v_body])
+    a = np.zeros(3) if disturbance_accel is None else np.asarray(disturbance_accel, dtype=float)
+    return np.concatenate([point, normal_xy, v_body, a])
 
 
 class VTNMPCPolicy(Policy):
@@ -263,6 +296,8 @@ class VTNMPCPolicy(Policy):
                                     config.weights.terminal_vector(), config.solver)
         self.scaling = config.scaling
         self._normal_xy: np.ndarray | None = None
+        self._a_hat = np.zeros(3)
+        self._v_pred_world: np.ndarray | None = None
         self.last_stats: SolveStats = SolveStats()
         self.last_command: np.ndarray | None = None
 
@@ -271,6 +306,8 @@ class VTNMPCPolicy(Policy):
         common interface)."""
         self.solver.reset()
         self._normal_xy = None
+        self._a_hat = np.zeros(3)
+        self._v_pred_world = None
         self.last_stats = SolveStats()
         self.last_command = None
 
@@ -294,16 +331,40 @@ class VTNMPCPolicy(Policy):
             fallback = horizontal_normal(np.append(away, 0.0), np.array([1.0, 0.0]))
         nxy = horizontal_normal(obs["normal"], fallback)
         self._normal_xy = nxy
-        return vtnmpc_parameters(state, obs["point"], nxy, obs["point_velocity"])
+        return vtnmpc_parameters(state, obs["point"], nxy, obs["point_velocity"], self._a_hat)
+
+    @property
+    def disturbance_estimate(self) -> np.ndarray:
+        """The observer's world-frame disturbance acceleration (zero when it is off)."""
+        return self._a_hat.copy()
+
+    def _update_observer(self, state: np.ndarray) -> None:
+        """a_hat += dt / (tau + dt) * (v_measured - v_predicted) / dt, in the world frame.
+
+        The prediction is the plan's x_1 from the previous step (model with the current a_hat), so
+        the velocity gap is the unmodelled acceleration; the estimate is bounded by g / 2."""
+        if self._v_pred_world is None:
+            return
+        dt, tau = self.config.dt, self.config.observer_time_constant
+        v_meas = quat_to_rotmat_np(state[6:10]) @ state[3:6]
+        self._a_hat += (v_meas - self._v_pred_world) / (tau + dt)
+        norm = float(np.linalg.norm(self._a_hat))
+        if norm > 0.5 * GRAVITY:
+            self._a_hat *= 0.5 * GRAVITY / norm
 
     def command(self, obs: Mapping[str, Any]) -> np.ndarray:
         """Physical command [p, q, r, T] for an observation (one RTI step)."""
         o = check_observation(obs)
         x = state_from_obs(o)
+        if self.config.disturbance_observer:
+            self._update_observer(x)
         params = self.parameters(o, x)
         u = self.solver.step(x, params)
         self.last_stats = self.solver.last_stats
         self.last_command = u
+        if self.config.disturbance_observer:
+            x1 = self.solver.iterate[:NX]   # after the shift: the predicted next state
+            self._v_pred_world = quat_to_rotmat_np(x1[6:10]) @ x1[3:6]
         return u
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
