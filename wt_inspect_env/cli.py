@@ -17,6 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
 }
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
+    "coverage": ("wt_inspect_env.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
     "env": ("wt_inspect_env.commands.bench_env", "environment steps per second (full mission)"),
     "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("controllers.bench", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
