@@ -228,3 +228,21 @@ def test_reference_rejects_bad_paths_and_steps():
         ref.step(DT, [0, np.nan, 0])
     with pytest.raises(ValueError, match="dt"):
         ref.step(0.0, [0, 0, 0])
+
+
+def test_single_point_runs_and_zero_hold():
+    pts = np.array([[0, 0, 50.0], [5, 0, 50.0], [6, 0, 50.0]])
+    nrm = np.tile([0, -1.0, 0], (3, 1))
+    ref = InspectionReference(pts, nrm, [0.0, 0.0, 1.0], [1, 2, 2],
+                              ReferenceConfig(mode="open_loop", phase_hold_time=0.0))
+    out = ref.reset()
+    assert out.phase == 1 and not out.done
+    out = ref.step(DT)                    # a one-point phase ends at once
+    assert out.waiting_for_phase_change and out.hold_started
+    out = ref.step(DT)                    # zero hold: phase 2 on the next step
+    assert out.phase_changed and out.phase == 2
+    np.testing.assert_allclose(out.point, [5, 0, 50])
+    while not out.done:
+        out = ref.step(DT)
+    np.testing.assert_allclose(out.point, [6, 0, 50])
+    assert out.progress == 1.0 and out.speed_factor == 0.0
