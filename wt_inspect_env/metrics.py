@@ -36,7 +36,6 @@ sequential sums through ``np.cumsum``, ``math.atan2``/``math.acos`` per sample),
 """
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_array, check_choice, check_finite, check_positive
+from .validation import check_array, check_choice, check_positive
 
 MODES = ("closed_loop", "open_loop")
 
