@@ -432,14 +432,23 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
 
 
 # --------------------------------------------------------------------------- loading
-def _principal_axis(points: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Weighted mean, eigenvalues (ascending) and eigenvectors (columns) of a point cloud."""
-    w = weights / weights.sum()
-    mean = w @ points
-    d = points - mean
-    cov = (d * w[:, None]).T @ d
-    vals, vecs = np.linalg.eigh(cov)
-    return mean, vals, vecs
+def area_moments(tris: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Centroid, second moment about it (3x3) and area of a set of triangles as uniform sheets.
+
+    Exact for the triangulated region (integral of x x^T over a triangle = A/12 (sum v v^T + s s^T),
+    s = sum of its vertices), so the principal axes do not depend on how a face is triangulated;
+    the triangle centroids alone would tilt them, since the two triangles of a grid cell are offset
+    diagonally.
+    """
+    tris = np.asarray(tris, dtype=np.float64)
+    _, areas = triangle_normals_areas(tris)
+    total = float(areas.sum())
+    mean = areas @ tris.mean(axis=1) / total
+    rel = tris - mean
+    ssum = rel.sum(axis=1)
+    w = areas / 12.0
+    M = np.einsum("k,kij,kil->jl", w, rel, rel) + np.einsum("k,kj,kl->jl", w, ssum, ssum)
+    return mean, M, total
 
 
 def load_turbine_mesh(path: str | Path, *, blade_faces: Any = None, obstacle_faces: Any = None,
@@ -491,8 +500,8 @@ def load_turbine_mesh(path: str | Path, *, blade_faces: Any = None, obstacle_fac
     cent = blade.mean(axis=1)
 
     if rotor_axis is None:
-        _, _, vecs = _principal_axis(cent, areas)
-        axis = vecs[:, 0]
+        _, M, _ = area_moments(blade)
+        axis = np.linalg.eigh(M)[1][:, 0]
         if len(obstacle):
             away = cent.mean(axis=0) - obstacle.reshape(-1, 3).mean(axis=0)
             away[2] = 0.0
@@ -507,7 +516,8 @@ def load_turbine_mesh(path: str | Path, *, blade_faces: Any = None, obstacle_fac
         n_lines = 0
         for k in np.unique(blade_lab):
             sel = blade_lab == k
-            m, vals, vecs = _principal_axis(cent[sel], areas[sel])
+            m, M, _ = area_moments(blade[sel])
+            vals, vecs = np.linalg.eigh(M)
             if vals[-1] <= 4.0 * vals[-2]:     # not elongated: no usable centre line
                 continue
             d = vecs[:, -1]

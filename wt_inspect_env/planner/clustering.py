@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..turbine import TurbineMesh, components, touching_pairs
+from ..turbine import TurbineMesh, area_moments, components, touching_pairs
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,18 +61,10 @@ def describe_surface(turbine: TurbineMesh, triangles: np.ndarray, surface_id: in
     area = turbine.blade_areas[idx]
     n = area @ turbine.blade_normals[idx]
     n /= np.linalg.norm(n)
-    w = area / area.sum()
-    mean = w @ cent
-    # Direction of the centre line: principal axis of the surface's exact second moment of area
-    # (uniform triangles: integral of x x^T = A/12 (sum v v^T + s s^T), s = sum of vertices), in
-    # the face plane. The centroids' own covariance would tilt the axis slightly, because the two
-    # triangles of each grid cell are offset diagonally.
-    rel = tris - mean
-    ssum = rel.sum(axis=1)
-    M = np.einsum("k,kij,kil->jl", area / 12.0, rel, rel) + np.einsum("k,kj,kl->jl", area / 12.0, ssum, ssum)
+    # centre line through the face's centroid along its long principal axis (exact area moments)
+    mean, M, _ = area_moments(tris)
     P = np.eye(3) - np.outer(n, n)
-    _, vecs = np.linalg.eigh(P @ M @ P)
-    e = vecs[:, -1]
+    e = np.linalg.eigh(P @ M @ P)[1][:, -1]
     if (mean - turbine.rotor_center) @ e < 0:  # orient root -> tip (away from the rotor centre)
         e = -e
     tv = (tris - mean) @ e                      # (k, 3) vertex projections on the centre line
