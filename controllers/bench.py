@@ -13,7 +13,7 @@ separately (into a fresh temporary cache, so it is a real compile).
 
 This module also holds the closed-loop harness used by the controller tests
 (:class:`SurfacePass`, :class:`ModelPlant`, :func:`run_closed_loop`). The plant only needs
-``reset(state)``, ``step(command) -> state`` and ``state``, so the PyBullet simulator
+``reset(state)``, ``step(command)`` and a ``state`` property, so the PyBullet simulator
 (:class:`wt_inspect_env.sim.QuadrotorSim`) can be passed instead of :class:`ModelPlant`.
 """
 from __future__ import annotations
@@ -171,7 +171,8 @@ def run_closed_loop(policy: Any, plant: Any, scenario: SurfacePass, steps: int,
     """Run ``policy`` (``act(obs) -> normalised action``) on ``plant`` for ``steps`` control
     steps of ``dt``; the step time is the wall time of ``act``."""
     policy.reset()
-    state = plant.reset(np.asarray(initial_state, dtype=float))
+    plant.reset(np.asarray(initial_state, dtype=float))
+    state = plant.state
     states, commands, dist, head, times, iters = [state], [], [], [], [], []
     statuses: list[str] = []
     fallbacks = 0
@@ -192,7 +193,8 @@ def run_closed_loop(policy: Any, plant: Any, scenario: SurfacePass, steps: int,
             statuses.append(st.status)
             fallbacks += int(st.fallback)
         command = scaling.to_command(action)
-        state = plant.step(command)
+        plant.step(command)
+        state = plant.state
         if not np.all(np.isfinite(state)):
             raise RuntimeError(f"plant state became non-finite at step {k}")
         states.append(state)
