@@ -17,24 +17,28 @@ from wt_inspect_env.spaces import OBS_KEYS, OBS_SHAPES
 
 def check_observation(obs: Mapping[str, Any]) -> dict[str, np.ndarray]:
     """The observation as float64 arrays of the documented shapes; ValueError naming the key
-    otherwise (a missing key or a NaN must not reach a solver)."""
+    otherwise (a missing key or a NaN must not reach a solver). A batch of one is unwrapped."""
     if not isinstance(obs, Mapping):
         raise ValueError(f"observation must be a dict with keys {OBS_KEYS}, got {type(obs).__name__}")
     out: dict[str, np.ndarray] = {}
     for key in OBS_KEYS:
-        if key not in obs:
-            raise ValueError(f"observation is missing key {key!r}")
-        arr = np.asarray(obs[key], dtype=np.float64)
+        try:
+            arr = np.asarray(obs[key], dtype=np.float64)
+        except KeyError:
+            raise ValueError(f"observation is missing key {key!r}") from None
+        except (TypeError, ValueError):
+            raise ValueError(f"observation[{key!r}] must be numeric, got {obs[key]!r}") from None
         shape = OBS_SHAPES[key]
         if arr.shape != shape:
-            # a batch of one (vectorised env with a single copy) is accepted
-            if arr.shape == (1,) + shape:
+            if arr.shape == (1,) + shape:   # a vectorised env with a single copy
                 arr = arr[0]
             else:
                 raise ValueError(f"observation[{key!r}] must have shape {shape}, got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"observation[{key!r}] must be finite, got {arr}")
         out[key] = arr
+    if not np.isfinite(sum(float(v.sum()) for v in out.values())):
+        bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
+        if bad:   # (an overflowing sum of finite values is not an error)
+            raise ValueError(f"observation[{bad[0]!r}] must be finite, got {out[bad[0]]}")
     return out
 
 

@@ -139,31 +139,36 @@ class OCP:
                 object.__setattr__(self, fname, arr)
             if np.any(self.h_lower > self.h_upper):
                 raise ValueError("h_lower must not exceed h_upper")
+        # sizes as plain ints: the properties below are on the hot path
+        nh = 0 if self.path_constraint is None else self.path_constraint.sparsity_out(0).size1()
+        object.__setattr__(self, "_dims", (
+            nx, nu, npar, self.stage_residual.sparsity_out(0).size1(),
+            self.terminal_residual.sparsity_out(0).size1(), nh))
 
     # ---- sizes -------------------------------------------------------------------------------
     @property
     def nx(self) -> int:
-        return self.dynamics.sparsity_in(0).size1()
+        return self._dims[0]
 
     @property
     def nu(self) -> int:
-        return self.dynamics.sparsity_in(1).size1()
+        return self._dims[1]
 
     @property
     def np(self) -> int:
-        return self.dynamics.sparsity_in(2).size1()
+        return self._dims[2]
 
     @property
     def ny(self) -> int:
-        return self.stage_residual.sparsity_out(0).size1()
+        return self._dims[3]
 
     @property
     def ny_terminal(self) -> int:
-        return self.terminal_residual.sparsity_out(0).size1()
+        return self._dims[4]
 
     @property
     def nh(self) -> int:
-        return 0 if self.path_constraint is None else self.path_constraint.sparsity_out(0).size1()
+        return self._dims[5]
 
     @property
     def n_vars(self) -> int:

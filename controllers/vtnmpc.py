@@ -123,7 +123,10 @@ def _default_params() -> QuadrotorParams:
 class VTNMPCConfig:
     """Everything that defines a VT-NMPC instance. ``weights`` may be a :class:`VTNMPCWeights`
     or the name of a set in :data:`WEIGHT_SETS`; ``norm_eps`` is the guard (m^2) inside every
-    norm; ``scaling`` defaults to the environment's action scaling of ``params``. ``backend``
+    norm; ``scaling`` defaults to the environment's action scaling of ``params``. ``solver``
+    defaults to HPIPM's ``speed_abs`` preset: the VT-NMPC QP has input bounds only and is strictly
+    convex (always feasible), and in closed loop it needs 10 % less time than ``speed`` with the
+    same trajectory (non-finite or failed QPs are still caught by the fallback). ``backend``
     ``"rti"`` is the real-time iteration; ``"ipopt"`` solves every step to convergence with
     IPOPT (warm-started) - the slow reference of the benchmark. ``disturbance_observer`` (off in
     the paper) estimates a world-frame disturbance acceleration from the gap between measured and
@@ -140,7 +143,7 @@ class VTNMPCConfig:
     norm_eps: float = 1e-6
     rk4_steps: int = 1
     scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=RTIOptions)
+    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
     backend: str = "rti"
     disturbance_observer: bool = False
     observer_time_constant: float = 0.3
