@@ -16,8 +16,9 @@ normal ``n`` and stand-off position ``q`` (``q = p + d_ref * offset_direction(n)
   virtual point that keeps the camera aimed ahead as the controllers expect.
 
 Resampling is done per piece, uniformly in stand-off arc length with at most ``spacing`` between
-samples and both ends of every piece kept, so each surface is inspected exactly from end node to
-end node. Surface and wrap pieces interpolate ``p`` (points stay on the blade) and derive ``q``;
+samples; both ends of every piece, the via points of transit routes and the blade-edge corner of
+wraps are samples (never cut), so each surface is inspected exactly from end node to end node and
+the resampled path stays on the clearance-checked route. Surface and wrap pieces interpolate ``p`` (points stay on the blade) and derive ``q``;
 transit pieces interpolate ``q`` (the route stays clear) and derive ``p``.
 """
 from __future__ import annotations
@@ -85,6 +86,7 @@ class Piece:
     p: np.ndarray
     n: np.ndarray
     q: np.ndarray
+    breaks: tuple[int, ...] = ()   # table rows that must be samples (route via points, edge corners)
 
     @property
     def standoff_length(self) -> float:
@@ -127,17 +129,20 @@ def wrap_piece(pa: np.ndarray, na: np.ndarray, pb: np.ndarray, nb: np.ndarray, c
     p = np.concatenate([leg1, leg2])
     s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
     n = slerp(na, nb, s / s[-1] if s[-1] > 0 else np.linspace(0.0, 1.0, len(p)))
-    return Piece("wrap", TRANSIT, phase, p, n, p + standoff * offset_direction(n, mode))
+    return Piece("wrap", TRANSIT, phase, p, n, p + standoff * offset_direction(n, mode), breaks=(n1,))
 
 
 def transit_piece(route: np.ndarray, n0: np.ndarray, n1: np.ndarray, phase: int, standoff: float,
                   mode: str, step: float) -> Piece:
     """Fly the stand-off along ``route`` while the normal's yaw/elevation go from ``n0`` to ``n1``."""
-    q = sample_polyline(route, step)
+    parts = [sample_polyline(route[i:i + 2], step) for i in range(len(route) - 1)]
+    q = np.concatenate([parts[0]] + [part[1:] for part in parts[1:]])
+    breaks = tuple(np.cumsum([len(part) - 1 for part in parts])[:-1])      # the via points
     s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))]
     tau = s / s[-1] if s[-1] > 0 else np.zeros(len(q))
     n = interp_yaw_elevation(n0, n1, tau)
-    return Piece("transit", TRANSIT, phase, q - standoff * offset_direction(n, mode), n, q)
+    return Piece("transit", TRANSIT, phase, q - standoff * offset_direction(n, mode), n, q,
+                 breaks=tuple(int(b) for b in breaks))
 
 
 @dataclass
@@ -157,11 +162,32 @@ def _interp_rows(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(x, xp, fp[:, j]) for j in range(fp.shape[1])], axis=1)
 
 
+def _sample_piece(kind: str, m: int, L: float, sig: np.ndarray, p: np.ndarray, n: np.ndarray, q: np.ndarray,
+                  standoff: float, mode: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``m + 1`` samples uniform in the table's stand-off arc length ``sig``."""
+    if len(sig) == 1:
+        return p[:1], n[:1], q[:1]
+    g = np.linspace(0.0, L, m + 1)
+    N = _interp_rows(g, sig, n)
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    if kind == "transit":
+        Q = _interp_rows(g, sig, q)
+        return Q - standoff * offset_direction(N, mode), N, Q
+    P = _interp_rows(g, sig, p)
+    return P, N, P + standoff * offset_direction(N, mode)
+
+
 def resample(pieces: list[Piece], spacing: float, standoff: float, mode: str) -> SampledPath:
     """Resample every piece at <= ``spacing`` of stand-off arc length and join them."""
     cols: dict[str, list] = {k: [] for k in ("p", "n", "q", "surface", "phase", "kind")}
     prev_kind = None
-    for piece in pieces:
+    split: list[Piece] = []
+    for piece in pieces:      # resample between breaks so that corners are samples, not cut
+        cuts = [0, *sorted(b for b in piece.breaks if 0 < b < len(piece.q) - 1), len(piece.q) - 1]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            split.append(Piece(piece.kind, piece.surface, piece.phase, piece.p[a:b + 1], piece.n[a:b + 1],
+                               piece.q[a:b + 1]))
+    for piece in split:
         ds = np.linalg.norm(np.diff(piece.q, axis=0), axis=1)
         keep = np.r_[True, ds > 0]
         q, p, n = piece.q[keep], piece.p[keep], piece.n[keep]
@@ -170,22 +196,18 @@ def resample(pieces: list[Piece], spacing: float, standoff: float, mode: str) ->
         if L <= 0 and piece.kind != "surface":
             continue
         m = max(1, math.ceil(L / spacing - 1e-9)) if L > 0 else 0
-        g = np.linspace(0.0, L, m + 1)
-        if len(sig) == 1:
-            P, N, Q = p[:1], n[:1], q[:1]
-        else:
-            N = _interp_rows(g, sig, n)
-            N /= np.linalg.norm(N, axis=1, keepdims=True)
-            if piece.kind == "transit":
-                Q = _interp_rows(g, sig, q)
-                P = Q - standoff * offset_direction(N, mode)
-            else:
-                P = _interp_rows(g, sig, p)
-                Q = P + standoff * offset_direction(N, mode)
+        for _ in range(8):
+            P, N, Q = _sample_piece(piece.kind, m, L, sig, p, n, q, standoff, mode)
+            # wraps derive q from interpolated p and n, so their true steps can exceed the table's
+            # chords by a fraction of a percent: refine until every step is within the spacing
+            worst = float(np.linalg.norm(np.diff(Q, axis=0), axis=1).max()) if len(Q) > 1 else 0.0
+            if worst <= spacing:
+                break
+            m = math.ceil(m * worst / spacing * 1.0001)
         if cols["q"] and len(cols["q"][-1]) and np.allclose(cols["q"][-1][-1], Q[0], atol=1e-9, rtol=0) \
                 and np.allclose(cols["p"][-1][-1], P[0], atol=1e-9, rtol=0):
             # joint sample: a surface keeps its end node; otherwise the earlier piece keeps it
-            if piece.kind == "surface" and prev_kind != "surface":
+            if piece.kind == "surface" and prev_kind not in (None, "surface"):
                 for k in cols:
                     cols[k][-1] = cols[k][-1][:-1]
             else:

@@ -1,8 +1,11 @@
 """The inspection plan: clustering -> two-phase exact ordering -> collision-free path.
 
 Phases (the paper's section "Automated Inspection Framework"): surfaces a level camera can
-inspect with the rotor as it is (normal elevation within ``[-max_down_deg, max_up_deg]``) form
-phase 1; the others (on the inverted Y, the two faces looking 60 deg down) are deferred. After
+inspect with the rotor as it is (normal elevation within ``[-max_down_deg, max_up_deg]`` and the
+stand-off along the whole centre line at least ``clearance`` from the turbine) form phase 1; the
+others (on the inverted Y, the two faces looking 60 deg down, whose stand-offs would also lie
+inside the other lower blade) are deferred. A deferred surface that is still not inspectable after
+the turn is an error (e.g. the upright Y at azimuth 60 deg needs two turns). After
 phase 1 the drone waits at a *hold point* outside the volume swept by the blades (its last
 stand-off if that is already outside, else that stand-off moved along the rotor axis to the front
 faces' stand-off plane), the rotor turns by ``rotor_turn_deg`` and phase 2 inspects the deferred
@@ -204,40 +207,44 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     # 2. phases, stand-offs, clearance ----------------------------------------------------
     elev = np.array([s.elevation_deg for s in surfaces])
     in_band = (elev >= -cfg.max_down_deg) & (elev <= cfg.max_up_deg)
-    ids1 = [s.id for s in surfaces if in_band[s.id]]
-    ids2 = [s.id for s in surfaces if not in_band[s.id]]
-    turbine2 = turbine.rotated(cfg.rotor_turn_deg)
-    geo2 = {i: describe_surface(turbine2, surfaces[i].triangles, i, surfaces[i].blade) for i in ids2}
-    for i, g in geo2.items():
-        if not -cfg.max_down_deg <= g.elevation_deg <= cfg.max_up_deg:
-            raise ValueError(
-                f"rotor_turn_deg {cfg.rotor_turn_deg!r} leaves surface {i} (normal elevation "
-                f"{surfaces[i].elevation_deg:.1f} deg before the turn, {g.elevation_deg:.1f} deg after) "
-                f"outside [-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
-    if not ids1:
-        raise ValueError("no surface can be inspected before the rotor turn "
-                         f"(normal elevations {np.round(elev, 1).tolist()} deg)")
-    G1 = [surfaces[i] for i in ids1]
-    G2 = [geo2[i] for i in ids2]
-    E1, E2 = _standoff_ends(G1, d, mode), _standoff_ends(G2, d, mode)
-    F1, F2 = _forbidden(G1), _forbidden(G2)
     rotor = _RotorGeometry(turbine)
     frame = _frame(turbine.rotor_axis)
     offsets = tuple(d * f for f in (0.5, 1.0, 2.0, 4.0))
     clr1 = Clearance(DistanceField(turbine.all_triangles), cfg.clearance, cfg.check_step, frame, offsets)
+    # phase 1: normal within the level camera's band and the stand-off clear of the turbine
+    ends1 = {s.id: _standoff_ends([s], d, mode)[0] for s in surfaces if in_band[s.id]}
+    ids1 = [i for i, e in ends1.items() if clr1.polyline_clear(e)]
+    ids2 = [s.id for s in surfaces if s.id not in ids1]
+    if not ids1:
+        raise ValueError("no surface can be inspected before the rotor turn (normal elevations "
+                         f"{np.round(elev, 1).tolist()} deg; standoff {d} m, clearance {cfg.clearance} m)")
+    turbine2 = turbine.rotated(cfg.rotor_turn_deg)
+    geo2 = {i: describe_surface(turbine2, surfaces[i].triangles, i, surfaces[i].blade) for i in ids2}
+    G1 = [surfaces[i] for i in ids1]
+    G2 = [geo2[i] for i in ids2]
+    F1, F2 = _forbidden(G1), _forbidden(G2)
     clr2 = Clearance(DistanceField(turbine2.all_triangles), cfg.clearance, cfg.check_step, frame, offsets) \
         if ids2 else None
+    for i, g in zip(ids2, G2):
+        why = None
+        if not -cfg.max_down_deg <= g.elevation_deg <= cfg.max_up_deg:
+            why = (f"its normal elevation is {g.elevation_deg:.1f} deg after the turn, outside "
+                   f"[-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
+        elif not clr2.polyline_clear(e := _standoff_ends([g], d, mode)[0]):
+            dmin = float(clr2.field.distance(np.linspace(e[0], e[1], 200), d).min())
+            why = (f"standoff {d!r} m puts the drone {dmin:.2f} m from the turbine (clearance "
+                   f"{cfg.clearance} m + check_step/2 required)")
+        if why:
+            in_phase1 = (" (stand-off not clear of the turbine)" if in_band[i]
+                         else f" (normal elevation {elev[i]:.1f} deg)")
+            raise ValueError(f"surface {i} cannot be inspected before the rotor turn{in_phase1} nor after "
+                             f"rotor_turn_deg {cfg.rotor_turn_deg!r}: {why}")
+    E1 = np.stack([ends1[i] for i in ids1])
+    E2 = _standoff_ends(G2, d, mode)
     start = np.asarray(cfg.start, dtype=np.float64) if cfg.start is not None else _default_start(turbine, rotor, d)
     if not clr1.is_clear(start[None]):
         raise ValueError(f"start {np.round(start, 3).tolist()} is closer than clearance "
                          f"{cfg.clearance} m (+ check_step/2) to the turbine")
-    for ids, E, clr, ph in ((ids1, E1, clr1, 1), (ids2, E2, clr2, 2)):
-        for i, e in zip(ids, E):
-            if not clr.polyline_clear(e):
-                dmin = float(clr.field.distance(np.linspace(e[0], e[1], 200), d).min())
-                raise ValueError(
-                    f"standoff {d!r} m puts the drone {dmin:.2f} m from the turbine while inspecting "
-                    f"surface {i} (phase {ph}); clearance {cfg.clearance} m (+ check_step/2) is required")
     t2 = time.perf_counter()
 
     # 3. exact ordering of both phases ----------------------------------------------------

@@ -1,0 +1,376 @@
+"""Planner: clustering vs builder labels, exact ordering vs brute force, path geometry and clearance."""
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from wt_inspect_env.planner import (HeldKarp, PlannerConfig, cluster_surfaces, plan_inspection, solve_tour,
+                                    tour_cost)
+from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
+from wt_inspect_env.planner.path import offset_direction
+from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
+
+
+@pytest.fixture(scope="module")
+def turb():
+    return build_turbine()
+
+
+@pytest.fixture(scope="module")
+def plan(turb):
+    return plan_inspection(turb)
+
+
+# --------------------------------------------------------------------------- reference helpers
+def ref_point_triangle_distance(p, tri) -> float:
+    """Distance point-triangle the textbook way: inside-projection or nearest of the three edges."""
+    a, b, c = tri
+    n = np.cross(b - a, c - a)
+    n /= np.linalg.norm(n)
+    q = p - ((p - a) @ n) * n
+    inside = all(np.cross(y - x, q - x) @ n >= 0 for x, y in ((a, b), (b, c), (c, a)))
+    best = abs((p - a) @ n) if inside else np.inf
+    for x, y in ((a, b), (b, c), (c, a)):
+        t = np.clip((p - x) @ (y - x) / ((y - x) @ (y - x)), 0.0, 1.0)
+        best = min(best, float(np.linalg.norm(p - (x + t * (y - x)))))
+    return best
+
+
+def brute_distance(points, tris, chunk=400):
+    """min over all triangles, exhaustively (chunks of points x all triangles)."""
+    out = []
+    for s in range(0, len(points), chunk):
+        P = points[s:s + chunk]
+        Pr = np.repeat(P, len(tris), axis=0)
+        T = np.tile(tris, (len(P), 1, 1))
+        d = np.linalg.norm(Pr - closest_points_on_triangles(Pr, T[:, 0], T[:, 1], T[:, 2]), axis=1)
+        out.append(d.reshape(len(P), len(tris)).min(axis=1))
+    return np.concatenate(out)
+
+
+def brute_force_tour(ends, start, forbidden, last=None):
+    """True enumeration of all surface orders and entry ends (optionally finishing at node ``last``)."""
+    n = len(ends)
+    best, best_stops = np.inf, None
+    for perm in itertools.permutations(range(n)):
+        if any(forbidden[perm[i], perm[i + 1]] for i in range(n - 1)):
+            continue
+        for entries in itertools.product((0, 1), repeat=n):
+            if last is not None and 2 * perm[-1] + 1 - entries[-1] != last:
+                continue
+            stops = tuple(zip(perm, entries))
+            c = tour_cost(ends, start, stops)
+            if c < best - 1e-12:
+                best, best_stops = c, stops
+    return best, best_stops
+
+
+# --------------------------------------------------------------------------- clustering
+def assert_clusters_match_builder(t, surfaces):
+    assert len(surfaces) == 12
+    for s in surfaces:
+        labels = np.unique(t.triangle_surface[s.triangles])
+        assert len(labels) == 1, labels
+        np.testing.assert_array_equal(np.sort(s.triangles), np.flatnonzero(t.triangle_surface == labels[0]))
+
+
+def test_default_turbine_has_12_surfaces_equal_to_the_long_faces(turb):
+    surfaces, ignored = cluster_surfaces(turb)
+    assert_clusters_match_builder(turb, surfaces)
+    assert len(ignored) == 0
+    spec = turb.spec
+    cell = 50.0 / math.ceil(50.0 / 1.5)
+    for s in surfaces:
+        i = s.triangles[0]
+        k, face = turb.triangle_blade[i], turb.triangle_face[i]
+        np.testing.assert_allclose(s.normal, turb.blade_normals[i], atol=1e-12)
+        # end nodes: on the face's centre line, half a cell in from the root and the tip
+        radial = (s.tip - s.root) / np.linalg.norm(s.tip - s.root)
+        half = spec.blade_width / 2 if face in (0, 1) else spec.blade_thickness / 2
+        other = spec.blade_thickness / 2 if face in (0, 1) else spec.blade_width / 2
+        c = turb.rotor_center
+        np.testing.assert_allclose((s.root - c) @ radial, spec.hub_radius + cell / 2, atol=1e-9)
+        np.testing.assert_allclose((s.tip - c) @ radial, spec.hub_radius + 50 - cell / 2, atol=1e-9)
+        np.testing.assert_allclose((s.root - c) @ s.normal, other, atol=1e-9)
+        assert s.width == pytest.approx(2 * half)
+        off_line = (s.root - c) - ((s.root - c) @ radial) * radial - ((s.root - c) @ s.normal) * s.normal
+        assert np.linalg.norm(off_line) < 1e-9          # centre of the face, not off to one side
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(length=st.floats(5.0, 90.0), width_frac=st.floats(0.02, 0.3), thick_frac=st.floats(0.15, 1.0),
+       step=st.floats(0.4, 4.0), azimuth=st.floats(-180, 180), facing=st.floats(-180, 180),
+       spare=st.floats(1.0, 80.0))
+def test_random_turbines_cluster_into_their_12_long_faces(length, width_frac, thick_frac, step, azimuth,
+                                                          facing, spare):
+    width = width_frac * length
+    spec = TurbineSpec(tower_height=length + width + spare, blade_length=length, blade_width=width,
+                       blade_thickness=thick_frac * width, mesh_step=step, rotor_azimuth_deg=azimuth,
+                       facing_deg=facing)
+    t = build_turbine(spec)
+    surfaces, ignored = cluster_surfaces(t)
+    assert_clusters_match_builder(t, surfaces)
+    assert len(ignored) == 0
+
+
+def test_clustering_a_loaded_soup_with_caps(turb, tmp_path):
+    """An STL is a triangle soup; with the blade caps included they are found and ignored."""
+    path = turb.export(tmp_path / "t.stl")
+    m, c = len(turb.blade_vertices), len(turb.cap_vertices)
+    loaded = load_turbine_mesh(path, blade_faces=np.arange(m + c))
+    surfaces, ignored = cluster_surfaces(loaded)
+    np.testing.assert_array_equal(ignored, np.arange(m, m + c))
+    assert len(surfaces) == 12
+    ref, _ = cluster_surfaces(turb)
+    for s, r in zip(surfaces, ref):
+        np.testing.assert_array_equal(s.triangles, r.triangles)
+        np.testing.assert_allclose(s.root, r.root, atol=1e-4)
+        np.testing.assert_allclose(s.tip, r.tip, atol=1e-4)
+    p_loaded = plan_inspection(loaded)
+    p_built = plan_inspection(turb)
+    assert p_loaded.tour_length == pytest.approx(p_built.tour_length, abs=1e-2)
+
+
+# --------------------------------------------------------------------------- ordering
+@settings(max_examples=60, deadline=None)
+@given(n=st.integers(0, 6), seed=st.integers(0, 2 ** 32 - 1), p_forbid=st.sampled_from([0.0, 0.2, 0.5]))
+def test_held_karp_equals_brute_force(n, seed, p_forbid):
+    rng = np.random.default_rng(seed)
+    ends = rng.normal(size=(n, 2, 3)) * rng.uniform(1, 50)
+    start = rng.normal(size=3) * 20
+    forb = np.triu(rng.random((n, n)) < p_forbid, 1)
+    forb = forb | forb.T
+    best, _ = brute_force_tour(ends, start, forb)
+    sol = solve_tour(ends, start, forb)
+    if not np.isfinite(best):
+        assert sol is None
+        return
+    assert sol.cost == pytest.approx(best, rel=1e-12, abs=1e-9)
+    assert tour_cost(ends, start, sol.stops) == pytest.approx(sol.cost, rel=1e-12, abs=1e-9)
+    assert sorted(k for k, _ in sol.stops) == list(range(n))
+    assert not any(forb[a, b] for (a, _), (b, _) in zip(sol.stops, sol.stops[1:]))
+    # the table also gives the optimum for every way of finishing (used to couple the two phases)
+    hk = HeldKarp(ends, start, forb)
+    for u in range(2 * n):
+        b_u, _ = brute_force_tour(ends, start, forb, last=u)
+        if np.isfinite(b_u):
+            assert hk.end_costs[u] == pytest.approx(b_u, rel=1e-12, abs=1e-9)
+            assert hk.tour(u).exit_node == u
+        else:
+            assert not np.isfinite(hk.end_costs[u])
+
+
+@pytest.mark.parametrize("subset", [(0, 1, 2, 3, 4, 5), (0, 2, 4, 5, 7, 9), (1, 3, 6, 8, 10, 11)])
+def test_held_karp_equals_brute_force_on_the_turbine(turb, subset):
+    surfaces, _ = cluster_surfaces(turb)
+    geo = [surfaces[i] for i in subset]
+    ends = np.stack([g.ends + 7.0 * offset_direction(g.normal, "horizontal") for g in geo])
+    n = np.array([g.normal for g in geo])
+    blade = np.array([g.blade for g in geo])
+    forb = (n @ n.T < -0.9) & (blade[:, None] == blade[None])
+    start = np.array([0.0, 11.1, 0.0])
+    best, _ = brute_force_tour(ends, start, forb)
+    assert solve_tour(ends, start, forb).cost == pytest.approx(best, rel=1e-12)
+
+
+def test_plan_tour_is_consistent_and_respects_the_rules(plan):
+    tour = plan.tour
+    assert sorted(t.surface for t in tour) == list(range(12))
+    assert [t.phase for t in tour] == sorted(t.phase for t in tour)
+    for a, b in zip(tour, tour[1:]):
+        ga, gb = plan.surface_geometry(a.surface), plan.surface_geometry(b.surface)
+        if a.phase == b.phase and ga.blade == gb.blade:
+            assert ga.normal @ gb.normal > -0.9, "direct hop between opposite faces"
+    # tour_length recomputed from the tour: straight moves between stand-offs + surface lengths
+    d = plan.standoff
+    pos, total, phase = plan.start, 0.0, 1
+    for t in tour:
+        if t.phase != phase:                       # retreat to the hold point before the rotor turn
+            total += np.linalg.norm(plan.hold_point - pos)
+            pos, phase = plan.hold_point, t.phase
+        g = plan.surface_geometry(t.surface)
+        e = g.ends + d * offset_direction(g.normal, "horizontal")
+        a, b = (e[0], e[1]) if t.entry == "root" else (e[1], e[0])
+        total += np.linalg.norm(a - pos) + np.linalg.norm(b - a)
+        pos = b
+    assert plan.tour_length == pytest.approx(total, rel=1e-12)
+    assert plan.path_length >= plan.tour_length - 1e-6     # the flown path is never shorter
+
+
+def test_two_phase_ordering_is_optimal_over_the_phase1_end(turb, plan):
+    """Total = best phase-1 cost ending at u + retreat + best phase-2 tour from u's hold point,
+    minimised over u: checked by recomputing every u with independent brute force for phase 2."""
+    from wt_inspect_env.planner.plan import _RotorGeometry
+    cfg = plan.config
+    g1 = [plan.surfaces[i] for i in range(12) if plan.surface_phase[i] == 1]
+    g2 = [plan.surfaces_phase2[i] for i in range(12) if plan.surface_phase[i] == 2]
+    e1 = np.stack([g.ends + 7.0 * offset_direction(g.normal, "horizontal") for g in g1])
+    e2 = np.stack([g.ends + 7.0 * offset_direction(g.normal, "horizontal") for g in g2])
+
+    def forb(g):
+        n = np.array([x.normal for x in g])
+        b = np.array([x.blade for x in g])
+        return (n @ n.T < -0.9) & (b[:, None] == b[None])
+
+    hk = HeldKarp(e1, plan.start, forb(g1))
+    rotor = _RotorGeometry(turb)
+    totals = []
+    for u in range(2 * len(g1)):
+        q = e1.reshape(-1, 3)[u]
+        hold = rotor.hold_point(q, cfg.clearance, cfg.standoff)
+        b2, _ = brute_force_tour(e2, hold, forb(g2))
+        totals.append(hk.end_costs[u] + np.linalg.norm(hold - q) + b2)
+    lengths = sum(g.length for g in g1 + g2)
+    assert plan.tour_length == pytest.approx(min(totals) + lengths, rel=1e-12)
+
+
+# --------------------------------------------------------------------------- phases
+def test_downward_faces_are_deferred_to_phase_2(plan):
+    el1 = np.array([s.elevation_deg for s in plan.surfaces])
+    np.testing.assert_array_equal(plan.surface_phase == 2, el1 < -45)
+    assert np.sum(plan.surface_phase == 2) == 2                           # the paper's last two surfaces
+    for i, g in plan.surfaces_phase2.items():
+        assert -45 <= g.elevation_deg <= 75                                # viewable after the turn
+    assert np.all(np.diff(plan.phase) >= 0) and set(plan.phase) == {1, 2}
+    assert plan.turbine_phase2.rotor_turn_deg == pytest.approx(120.0)
+    # where the drone waits for the turn, it is outside the volume the blades sweep
+    rel = plan.hold_point - plan.turbine_phase1.rotor_center
+    a = rel @ plan.turbine_phase1.rotor_axis
+    radial = np.linalg.norm(rel - a * plan.turbine_phase1.rotor_axis)
+    assert abs(a) >= 0.5 + plan.config.clearance or radial >= 52.2 + plan.config.clearance
+
+
+# --------------------------------------------------------------------------- path
+def test_inspection_points_lie_on_their_surfaces(plan):
+    for sid in range(12):
+        sel = plan.surface == sid
+        assert sel.sum() > 0
+        g = plan.surface_geometry(sid)
+        turb = plan.turbine(plan.surface_phase[sid])
+        assert set(plan.phase[sel]) == {int(plan.surface_phase[sid])}
+        tris = turb.blade_vertices[g.triangles]
+        d = brute_distance(plan.points[sel], tris)
+        assert d.max() < 1e-9
+        np.testing.assert_allclose(plan.normals[sel], np.tile(g.normal, (sel.sum(), 1)), atol=1e-12)
+        # each surface is inspected once, from one end node to the other, at <= spacing
+        idx = np.flatnonzero(sel)
+        assert np.all(np.diff(idx) == 1)
+        ends = {tuple(np.round(plan.points[idx[0]], 9)), tuple(np.round(plan.points[idx[-1]], 9))}
+        assert ends == {tuple(np.round(g.root, 9)), tuple(np.round(g.tip, 9))}
+        assert np.linalg.norm(np.diff(plan.points[idx], axis=0), axis=1).max() <= plan.config.spacing + 1e-9
+
+
+def test_wraps_slide_over_the_blade_and_normals_turn_smoothly(plan):
+    wraps = plan.kind == 1
+    assert wraps.sum() > 0
+    for ph in (1, 2):
+        sel = wraps & (plan.phase == ph)
+        if sel.any():
+            turb = plan.turbine(ph)
+            tris = np.concatenate([turb.blade_vertices, turb.cap_vertices])
+            assert brute_distance(plan.points[sel], tris).max() < 1e-9   # on the blade surface
+    np.testing.assert_allclose(np.linalg.norm(plan.normals, axis=1), 1.0, atol=1e-12)
+    turn = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", plan.normals[1:], plan.normals[:-1]), -1, 1)))
+    same_phase = np.diff(plan.phase) == 0
+    assert turn[same_phase].max() < 2.0           # no jumps: < 2 deg between samples 0.1 m apart
+    # around a blade edge the normal stays perpendicular to the edge (turns in the cross-section)
+    idx = np.flatnonzero(wraps)
+    groups = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)
+    for grp in groups:
+        n = plan.normals[np.r_[grp[0] - 1, grp, grp[-1] + 1]]
+        edge = np.cross(n[0], n[-1])
+        edge /= np.linalg.norm(edge)
+        assert np.abs(n @ edge).max() < 1e-6
+
+
+def test_standoffs_clear_the_turbine_and_arc_lengths(plan):
+    d = plan.standoff
+    q, p, n = plan.standoff_points, plan.points, plan.normals
+    np.testing.assert_allclose(q, p + d * offset_direction(n, "horizontal"), atol=1e-9)
+    np.testing.assert_allclose(q[:, 2], p[:, 2], atol=1e-9)          # level camera at the point's height
+    steps_q = np.linalg.norm(np.diff(q, axis=0), axis=1)
+    assert np.all(steps_q > 0) and steps_q.max() <= plan.config.spacing + 1e-9
+    np.testing.assert_allclose(plan.standoff_s, np.r_[0, np.cumsum(steps_q)])
+    np.testing.assert_allclose(plan.s, np.r_[0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))])
+    assert np.all(np.diff(plan.s) >= 0)
+    np.testing.assert_allclose(q[0], plan.start)
+    # exact clearance of every 3rd sample against every triangle of that phase's turbine
+    for ph in (1, 2):
+        turb = plan.turbine(ph)
+        sel = np.flatnonzero(plan.phase == ph)[::3]
+        dist = brute_distance(q[sel], turb.all_triangles)
+        assert dist.min() >= plan.config.clearance
+    assert plan.min_clearance() >= plan.config.clearance
+
+
+def test_distance_field_is_exact(turb):
+    rng = np.random.default_rng(3)
+    T = rng.normal(size=(200, 3, 3))
+    P = rng.normal(size=(200, 3)) * 2
+    cp = closest_points_on_triangles(P, T[:, 0], T[:, 1], T[:, 2])
+    ref = np.array([ref_point_triangle_distance(P[i], T[i]) for i in range(200)])
+    np.testing.assert_allclose(np.linalg.norm(P - cp, axis=1), ref, atol=1e-12)
+    pts = turb.rotor_center + rng.normal(size=(300, 3)) * np.array([20.0, 8.0, 40.0])
+    field = DistanceField(turb.all_triangles)
+    np.testing.assert_allclose(field.distance(pts, 6.0), np.minimum(brute_distance(pts, turb.all_triangles), 6.0),
+                               atol=1e-12)
+
+
+@pytest.mark.parametrize("spec_kw,cfg_kw", [
+    ({"facing_deg": 30.0, "position": (10.0, -5.0)}, {}),
+    ({"rotor_azimuth_deg": 120.0}, {}),
+    ({"rotor_azimuth_deg": 10.0}, {"rotor_turn_deg": -120.0}),
+    ({"blade_length": 35.0, "blade_width": 2.5, "tower_height": 80.0}, {"spacing": 0.25, "standoff": 9.0}),
+    ({}, {"standoff_mode": "normal"}),
+    ({}, {"rotor_turn_deg": -120.0}),
+])
+def test_other_turbines_and_options(spec_kw, cfg_kw, plan):
+    t = build_turbine(TurbineSpec(**spec_kw))
+    p = plan_inspection(t, **cfg_kw)
+    assert p.n_surfaces == 12 and sorted(x.surface for x in p.tour) == list(range(12))
+    mode = p.config.standoff_mode
+    np.testing.assert_allclose(p.standoff_points, p.points + p.standoff * offset_direction(p.normals, mode),
+                               atol=1e-9)
+    assert p.min_clearance() >= p.config.clearance
+    for sid in range(12):
+        g = p.surface_geometry(sid)
+        sel = p.surface == sid
+        d = brute_distance(p.points[sel][::10], p.turbine(p.surface_phase[sid]).blade_vertices[g.triangles])
+        assert d.max() < 1e-9
+    if "position" in spec_kw or spec_kw.get("rotor_azimuth_deg") == 120.0:
+        # a rigid motion of the turbine (and default start), or turning the symmetric rotor by
+        # 120 deg, changes nothing
+        assert p.tour_length == pytest.approx(plan.tour_length, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- bad input
+@pytest.mark.parametrize("field,value", [
+    ("standoff", 0.0), ("standoff", -7.0), ("standoff", float("nan")), ("spacing", 0.0),
+    ("spacing", 1e-5), ("spacing", 50.0), ("clearance", 0.0), ("clearance", 8.0),
+    ("rotor_turn_deg", float("inf")), ("rotor_turn_deg", 400.0), ("max_down_deg", 95.0), ("max_up_deg", -1.0),
+    ("standoff_mode", "sideways"), ("start", (0.0, float("nan"), 0.0)), ("start", (1.0, 2.0)),
+    ("check_step", 5.0), ("cluster_angle_deg", 0.0),
+])
+def test_bad_config_names_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        PlannerConfig(**{field: value})
+
+
+def test_bad_planning_input_names_the_problem(turb):
+    with pytest.raises(ValueError, match="teleport"):
+        plan_inspection(turb, teleport=True)
+    with pytest.raises(ValueError, match="start"):
+        plan_inspection(turb, start=(0.0, 0.0, 50.0))               # inside the tower
+    with pytest.raises(ValueError, match="standoff"):
+        plan_inspection(turb, standoff=2.5, clearance=2.0)          # 60-deg faces: 1.25 m from the blade
+    with pytest.raises(ValueError, match="rotor_turn_deg"):
+        plan_inspection(turb, rotor_turn_deg=0.0)                   # downward faces stay downward
+    with pytest.raises(ValueError, match="rotor_turn_deg"):        # the upright Y needs two turns
+        plan_inspection(build_turbine(rotor_azimuth_deg=60.0))
+    with pytest.raises(ValueError, match="turbine"):
+        plan_inspection("turbine.stl")
