@@ -33,7 +33,7 @@ compare with IPOPT (:class:`IpoptOCPSolver`, also the converged baseline of the 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca

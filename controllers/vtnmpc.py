@@ -28,9 +28,21 @@ model (zero unless the optional disturbance observer is on):
 
 Horizon N = 30 at 0.01 s, RK4 multiple shooting, |p|, |q|, |r| <= 100 deg/s and
 0.3 m g <= T <= 2 m g (the environment's action bounds, from :class:`ActionScaling`).
+
+Closed-loop behaviour measured with this implementation (tests/test_vtnmpc.py, bench harness):
+
+* The 0.3 s horizon sees little of how attitude moves the drone, so position is weakly damped:
+  on a drag-free plant the converged MPC (IPOPT or SQP alike, so not an RTI artefact) keeps a
+  +-0.5 m oscillation, while N = 60 settles. With the rotor drag every real airframe (and the
+  simulator) has, it settles to |d - d_ref| < 0.1 m, h > 0.99 within ~7 s of a 1 m offset.
+* Without a disturbance model, the paper's 4 m/s gust blowing *along* the surface normal pushes
+  the drone ~1 m off d_ref (SM with 1 m margin ~75-80 %); across the normal SM stays 100 %.
+  ``disturbance_observer=True`` brings the error under 0.3 m (SM 100 %) in both cases.
+* The later tuning set is less damped than the paper's weights on the same plant.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field, fields
 from typing import Any, Mapping
 
@@ -287,7 +299,6 @@ class VTNMPCPolicy(Policy):
             bad = sorted(set(overrides) - known)
             if bad:
                 raise ValueError(f"unknown VTNMPCConfig option(s) {bad}; valid: {sorted(known)}")
-            import dataclasses
             config = dataclasses.replace(config, **overrides)
         self.config = config
         self.ocp = build_ocp(config)
@@ -320,7 +331,10 @@ class VTNMPCPolicy(Policy):
         if not isinstance(w, VTNMPCWeights):
             raise ValueError(f"weights must be VTNMPCWeights or one of {list(WEIGHT_SETS)}, "
                              f"got {weights!r}")
-        self.solver.set_weights(w.stage_vector(), w.terminal_vector())
+        if isinstance(self.solver, IpoptOCPSolver):   # weights are baked into its NLP
+            self.solver = IpoptOCPSolver(self.ocp, w.stage_vector(), w.terminal_vector())
+        else:
+            self.solver.set_weights(w.stage_vector(), w.terminal_vector())
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray) -> np.ndarray:
         """Online parameters from a checked observation (see :func:`vtnmpc_parameters`).
