@@ -5,7 +5,6 @@ import math
 
 import numpy as np
 import pytest
-import trimesh
 
 from wt_inspect_env.turbine import (TurbineMesh, TurbineSpec, build_turbine, load_turbine_mesh,
                                     rotation_matrix)

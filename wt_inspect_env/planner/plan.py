@@ -40,7 +40,7 @@ from .clearance import Clearance, DistanceField
 from .clustering import Surface, cluster_surfaces, describe_surface
 from .config import PlannerConfig
 from .ordering import HeldKarp, TourSolution, solve_tour
-from .path import TRANSIT, Piece, offset_direction, resample, surface_piece, transit_piece, wrap_corner, wrap_piece
+from .path import Piece, offset_direction, resample, surface_piece, transit_piece, wrap_corner, wrap_piece
 
 CSV_HEADER = "x,y,z,nx,ny,nz,surface,phase,s"
 OPPOSITE_COS = math.cos(math.radians(150.0))   # normals further apart than 150 deg: opposite faces
