@@ -374,3 +374,19 @@ def test_bad_planning_input_names_the_problem(turb):
         plan_inspection(build_turbine(rotor_azimuth_deg=60.0))
     with pytest.raises(ValueError, match="turbine"):
         plan_inspection("turbine.stl")
+
+
+@settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(length=st.floats(10.0, 80.0), width_frac=st.floats(0.03, 0.12), step=st.floats(0.8, 3.0),
+       spare=st.floats(5.0, 60.0), standoff=st.floats(6.0, 12.0))
+def test_random_turbines_get_complete_clear_plans(length, width_frac, step, spare, standoff):
+    width = width_frac * length
+    t = build_turbine(TurbineSpec(tower_height=length + width + spare, blade_length=length,
+                                  blade_width=width, mesh_step=step))
+    p = plan_inspection(t, standoff=standoff, spacing=0.2)
+    assert sorted(x.surface for x in p.tour) == list(range(12))
+    assert p.min_clearance() >= p.config.clearance
+    for sid in range(12):
+        g = p.surface_geometry(sid)
+        field = DistanceField(p.turbine(p.surface_phase[sid]).blade_vertices[g.triangles])
+        assert field.distance(p.points[p.surface == sid], 1.0).max() < 1e-9

@@ -378,6 +378,8 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
     """Mesh the turbine of ``spec`` (default: the paper's V100); ``options`` override spec fields."""
     if spec is None:
         spec = TurbineSpec.from_options(options)
+    elif not isinstance(spec, TurbineSpec):
+        raise ValueError(f"spec must be a TurbineSpec, got {type(spec).__name__}")
     elif options:
         check_unknown_options("turbine", options.keys(), [f.name for f in dataclasses.fields(TurbineSpec)])
         spec = dataclasses.replace(spec, **options)

@@ -196,6 +196,8 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     """Plan the two-phase inspection of ``turbine``; ``options`` override ``config`` fields."""
     if not isinstance(turbine, TurbineMesh):
         raise ValueError(f"turbine must be a TurbineMesh, got {type(turbine).__name__}")
+    if config is not None and not isinstance(config, PlannerConfig):
+        raise ValueError(f"config must be a PlannerConfig, got {type(config).__name__}")
     cfg = PlannerConfig.from_options(options, base=config) if (options or config is None) else config
     d, mode = cfg.standoff, cfg.standoff_mode
     t0 = time.perf_counter()
