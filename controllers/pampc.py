@@ -1,0 +1,222 @@
+"""Perception-aware MPC (PAMPC, after Falanga et al. 2018) as the paper's second baseline.
+
+The same trajectory tracking as the NMPC baseline (:mod:`controllers.tracking`: the stand-off
+waypoint moving with the inspection point, world velocity, level attitude, inputs), plus a
+perception residual: the inspection point expressed in the camera frame,
+
+    S_B = R(q)^T (p_pt(tau) - p) - t_BC,       S_C = R_CB S_B,
+    s   = (S_C,x, S_C,y) / z~(S_C,z)           (normalised image coordinates, reference (0, 0))
+
+with p_pt(tau) = p_pt + v_pt tau moving over the horizon like the waypoint.
+
+Camera. PAMPC is about making the *attitude* serve perception, so - as in Falanga et al. - the camera
+is rigidly mounted: it looks along body x (tilted up by the environment's ``mount_pitch_deg``) from
+the environment's ``mount_offset`` t_BC, and R(q) is the full body attitude (roll and pitch move
+the image). The environment's inspection camera sits on a roll/pitch gimbal instead (its optical
+axis is body x rotated by yaw only), so for a level drone both coincide and otherwise PAMPC
+predicts a worse image than the gimbal delivers - the baseline's own model, not the environment's.
+The authors' implementation accidentally used the body *up* axis as optical axis and two different
+denominators; both are fixed here (camera frame OpenCV-style: x right, y down, z optical axis).
+
+Guard. The projection divides by the depth, which crosses zero when the point approaches the image
+plane. The depth is replaced by a smooth maximum with ``image_plane_guard`` = z_m,
+
+    z~(z) = ( z + z_m + sqrt((z - z_m)^2 + z_m^2) ) / 2,
+
+which is z to within z_m^2 / (4 z) in front of the camera (0.14 % at 7 m for z_m = 0.5 m), z_m * 1.5
+at z = z_m and tends to z_m behind the camera: the residual and its Jacobian stay finite
+everywhere and grow (rather than flip sign or vanish, as |z| or sqrt(z^2 + eps) would mirror them)
+as the point moves behind the camera. Limitation inherent to the projection residual: a point
+*exactly* behind the camera on the optical axis also has s = 0; the position tracking and the tilt
+terms do not move the drone there, but a yaw that starts facing away is not corrected unless the
+``heading`` weight is non-zero.
+
+Weights (:class:`PAMPCWeights`). Defaults are the authors' PAMPC file (Matrice 100 Gazebo airframe of
+their ``PAMPC`` package; the notes are silent on them): position (30, 30, 40), velocity (3, 3, 3)
+(world frame in their model, as here), q_x/q_y 60, q_z/q_w 0 (so heading 0: the yaw is left to the
+perception term), perception (0.05, 0.0), rates (3, 3, 1), thrust 0.035, terminal 1.5 W. Their
+vertical image coordinate was unweighted; it is kept at 0 by default because with a rigid camera
+it competes with the level-attitude and height terms.
+
+Horizon: the authors' 30 steps of 0.1 s (3 s), RK4 multiple shooting instead of their implicit
+Gauss-Legendre integrator (same order). The command period is the environment's 0.01 s
+(``control_dt``), shorter than a stage, so the warm start is kept rather than shifted
+(:func:`~controllers.tracking.warm_start_shifts`). Input bounds are the environment's action bounds
+(|rates| <= 100 deg/s, 0.3 to 2 m g), tighter than the authors' 3 rad/s and 3 m g: a policy cannot
+command outside the action space. Online parameters: ``[p_wp (3), v_pt (3), cos psi_ref,
+sin psi_ref, p_pt (3)]``.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import casadi as ca
+import numpy as np
+
+from wt_inspect_env.camera import CameraConfig
+from wt_inspect_env.dynamics import NU, NX, quat_to_rotmat
+from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.validation import check_positive
+
+from .rti import OCP, RTIOptions
+from .tracking import (CLOCK, N_TRACKING_PARAMS, NX_AUG, TrackingMPCPolicy, TrackingReference,
+                       augmented_dynamics, check_input_weights, hover_input, tracking_terms,
+                       validate_tracking_config, weight_tuple)
+
+N_PARAMS = N_TRACKING_PARAMS + 3
+STAGE_RESIDUAL_NAMES = ("px", "py", "pz", "vx", "vy", "vz", "qx", "qy", "hx", "hy", "sx", "sy",
+                        "p", "q", "r", "T")
+TERMINAL_RESIDUAL_NAMES = STAGE_RESIDUAL_NAMES[:12]
+
+
+@dataclass(frozen=True)
+class PAMPCWeights:
+    """Diagonal least-squares weights of the PAMPC (defaults: the authors' file, see the module
+    docstring). ``perception`` weighs the normalised image coordinates (x right, y down)."""
+
+    position: tuple[float, ...] = (30.0, 30.0, 40.0)
+    velocity: tuple[float, ...] = (3.0, 3.0, 3.0)
+    tilt: tuple[float, ...] = (60.0, 60.0)
+    heading: float = 0.0
+    perception: tuple[float, ...] = (0.05, 0.0)
+    inputs: tuple[float, ...] = (3.0, 3.0, 1.0, 0.035)
+    terminal_factor: float = 1.5
+
+    def __post_init__(self) -> None:
+        for name, n in (("position", 3), ("velocity", 3), ("tilt", 2), ("perception", 2),
+                        ("inputs", 4)):
+            object.__setattr__(self, name, weight_tuple(f"weights.{name}", getattr(self, name), n))
+        check_input_weights("weights.inputs", self.inputs)
+        for name in ("heading", "terminal_factor"):
+            object.__setattr__(self, name, check_positive(f"weights.{name}", getattr(self, name),
+                                                          allow_zero=True))
+
+    @classmethod
+    def authors(cls) -> "PAMPCWeights":
+        return cls()
+
+    def _state_part(self) -> np.ndarray:
+        return np.array([*self.position, *self.velocity, *self.tilt, self.heading, self.heading,
+                         *self.perception])
+
+    def stage_vector(self) -> np.ndarray:
+        return np.concatenate([self._state_part(), self.inputs])
+
+    def terminal_vector(self) -> np.ndarray:
+        return self.terminal_factor * self._state_part()
+
+
+WEIGHT_SETS: dict[str, PAMPCWeights] = {"authors": PAMPCWeights.authors()}
+
+
+def _default_params() -> QuadrotorParams:
+    return get_preset("matrice100")
+
+
+@dataclass(frozen=True)
+class PAMPCConfig:
+    """Everything that defines a PAMPC instance (fields as :class:`~controllers.nmpc.NMPCConfig`,
+    plus the camera mounting and the projection guard ``image_plane_guard`` [m])."""
+
+    params: QuadrotorParams = field(default_factory=_default_params)
+    weights: PAMPCWeights | str = "authors"
+    horizon: int = 30
+    dt: float = 0.1
+    d_ref: float = 7.0
+    rk4_steps: int = 1
+    control_dt: float | None = 0.01
+    scaling: ActionScaling | None = None
+    solver: RTIOptions = field(default_factory=RTIOptions)
+    backend: str = "rti"
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    image_plane_guard: float = 0.5
+
+    def __post_init__(self) -> None:
+        validate_tracking_config(self, PAMPCWeights, WEIGHT_SETS)
+        if not isinstance(self.camera, CameraConfig):
+            raise ValueError(f"camera must be a CameraConfig, got {self.camera!r}")
+        check_positive("image_plane_guard", self.image_plane_guard)
+
+    @property
+    def hover_input(self) -> np.ndarray:
+        return hover_input(self.params)
+
+
+def camera_rotation(camera: CameraConfig) -> np.ndarray:
+    """R_CB: rows are the camera's right, down and optical axes in body coordinates (optical axis
+    = body x tilted up by ``mount_pitch_deg``, right = body -y)."""
+    t = math.radians(camera.mount_pitch_deg)
+    forward = np.array([math.cos(t), 0.0, math.sin(t)])
+    right = np.array([0.0, -1.0, 0.0])
+    down = np.cross(forward, right)
+    return np.vstack([right, down, forward])
+
+
+def smooth_depth(z, guard: float):
+    """Smooth maximum of the depth and ``guard`` (see the module docstring)."""
+    return 0.5 * (z + guard + ca.sqrt((z - guard) ** 2 + guard ** 2))
+
+
+def image_coordinates(x, point, camera: CameraConfig, guard: float):
+    """Normalised image coordinates (s_x, s_y) of a world point for a drone state (symbolic)."""
+    R = quat_to_rotmat(x[6:10])
+    S_B = R.T @ (point - x[0:3]) - ca.DM(camera.mount_offset)
+    S_C = ca.DM(camera_rotation(camera)) @ S_B
+    z = smooth_depth(S_C[2], guard)
+    return ca.vertcat(S_C[0] / z, S_C[1] / z)
+
+
+def projection_function(config: PAMPCConfig) -> ca.Function:
+    """``s(x, point)``: the perception residual for a model state (10) and a world point (tests,
+    plots)."""
+    x = ca.SX.sym("x", NX)
+    pt = ca.SX.sym("point", 3)
+    return ca.Function("pampc_s", [x, pt],
+                       [image_coordinates(x, pt, config.camera, config.image_plane_guard)],
+                       ["x", "point"], ["s"])
+
+
+def residual_functions(config: PAMPCConfig) -> tuple[ca.Function, ca.Function]:
+    """(stage_residual(x_aug, u, p), terminal_residual(x_aug, p)), zero at the reference."""
+    x = ca.SX.sym("x", NX_AUG)
+    u = ca.SX.sym("u", NU)
+    p = ca.SX.sym("p", N_PARAMS)
+    t = tracking_terms(x, p)
+    point = p[N_TRACKING_PARAMS:N_TRACKING_PARAMS + 3] + p[3:6] * x[CLOCK]
+    s = image_coordinates(x, point, config.camera, config.image_plane_guard)
+    state_res = ca.vertcat(t["position"], t["velocity"], t["tilt"], t["heading"], s)
+    stage = ca.Function("pampc_r", [x, u, p],
+                        [ca.vertcat(state_res, u - ca.DM(config.hover_input))],
+                        ["x", "u", "p"], ["r"])
+    terminal = ca.Function("pampc_rN", [x, p], [state_res], ["x", "p"], ["rN"])
+    return stage, terminal
+
+
+def build_ocp(config: PAMPCConfig) -> OCP:
+    """The PAMPC as a generic least-squares OCP (RK4 of the shared model plus the clock state)."""
+    F = augmented_dynamics("pampc", config.params, config.dt, config.rk4_steps, N_PARAMS)
+    stage, terminal = residual_functions(config)
+    return OCP(name="pampc", dynamics=F, stage_residual=stage, terminal_residual=terminal,
+               horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
+               u_upper=config.scaling.upper, fallback_input=config.hover_input)
+
+
+class PAMPCPolicy(TrackingMPCPolicy):
+    """PAMPC as a policy: observation in, normalised (p, q, r, T) action out (interface as
+    ``VTNMPCPolicy``; :attr:`last_stats` after every call)."""
+
+    config_class = PAMPCConfig
+    weight_sets = WEIGHT_SETS
+
+    def __init__(self, config: PAMPCConfig | None = None, **overrides: Any) -> None:
+        super().__init__(config, **overrides)
+
+    def build_ocp(self, config: PAMPCConfig) -> OCP:
+        return build_ocp(config)
+
+    def parameters_for(self, reference: TrackingReference,
+                       obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        return np.concatenate([reference.parameters(), obs["point"]])
