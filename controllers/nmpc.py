@@ -106,6 +106,9 @@ class NMPCConfig:
 
     ``control_dt`` is the period at which :meth:`NMPCPolicy.act` is called (default: ``dt``); the
     warm start is shifted accordingly (:func:`~controllers.tracking.warm_start_shifts`).
+    ``solver`` defaults to HPIPM's ``speed_abs`` preset like the VT-NMPC: the QP has input bounds
+    only and a Gauss-Newton Hessian with positive input weights, so it is strictly convex and
+    always feasible (failed or non-finite QPs are still caught by the RTI fallback).
     """
 
     params: QuadrotorParams = field(default_factory=_default_params)
@@ -116,7 +119,7 @@ class NMPCConfig:
     rk4_steps: int = 1
     control_dt: float | None = None
     scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=RTIOptions)
+    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
     backend: str = "rti"
 
     def __post_init__(self) -> None:

@@ -119,7 +119,9 @@ def _default_params() -> QuadrotorParams:
 @dataclass(frozen=True)
 class PAMPCConfig:
     """Everything that defines a PAMPC instance (fields as :class:`~controllers.nmpc.NMPCConfig`,
-    plus the camera mounting and the projection guard ``image_plane_guard`` [m])."""
+    plus the camera mounting and the projection guard ``image_plane_guard`` [m]); ``control_dt``
+    defaults to the environment's 0.01 s, ``solver`` to HPIPM's ``speed_abs`` (strictly convex QP
+    with input bounds only, as for the NMPC)."""
 
     params: QuadrotorParams = field(default_factory=_default_params)
     weights: PAMPCWeights | str = "authors"
@@ -129,7 +131,7 @@ class PAMPCConfig:
     rk4_steps: int = 1
     control_dt: float | None = 0.01
     scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=RTIOptions)
+    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
     backend: str = "rti"
     camera: CameraConfig = field(default_factory=CameraConfig)
     image_plane_guard: float = 0.5
