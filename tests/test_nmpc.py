@@ -231,3 +231,21 @@ def test_bad_overrides_and_observations_raise(policy):
     obs["point"] = np.array([np.nan, 0, 0], dtype=np.float32)
     with pytest.raises(ValueError, match="point"):
         policy.act(obs)
+
+
+def test_policy_interface_and_ipopt_backend(policy, params):
+    scenario = SurfacePass()
+    x = offset_start(scenario, D_REF)
+    obs = make_observation(x, scenario.point(0), np.asarray(scenario.normal), scenario.velocity())
+    batched = {k: v[None] for k, v in obs.items()}
+    action, _ = policy.predict(batched, episode_start=np.array([True]))
+    assert action.shape == (1, 4) and np.all(np.abs(action) <= 1.0)
+    assert policy.predicted_states.shape == (policy.config.horizon + 1, 10)
+    u_rti = policy.last_command
+    ip = NMPCPolicy(params=params, backend="ipopt")
+    ip.act(obs)
+    assert not ip.last_stats.fallback
+    # one RTI step from a hover guess is not converged, but it points the same way
+    assert np.sign(ip.last_command[3] - policy.config.hover_input[3]) == \
+        np.sign(u_rti[3] - policy.config.hover_input[3])
+    assert ip.predicted_states.shape == (policy.config.horizon + 1, 10)
