@@ -1,0 +1,250 @@
+"""The Gymnasium environment: a PyBullet quadrotor inspecting a wind turbine under wind.
+
+One :class:`WindTurbineInspectionEnv` owns the physics (:class:`~wt_inspect_env.sim.QuadrotorSim`,
+its own PyBullet client), the turbine and its inspection plan, the moving inspection reference, the
+camera-coverage tracker and the metric accumulator. Small hooks (``_observation``, ``_reward``,
+``_termination``) can be overridden, after gym-pybullet-drones, without touching the physics.
+
+Step: the normalised action (see :mod:`~wt_inspect_env.spaces`) becomes a ``[p, q, r, T]`` command
+held for ``1 / ctrl_hz``; the inspection point advances (closed loop: it waits for a lagging
+drone); at ``camera_hz`` the gimbal camera takes a frame and the newly seen blade triangles count.
+At the end of phase 1 the reference holds, the rotor turns by ``rotor_turn_deg`` (the collision
+mesh and the coverage geometry swap to the rotated turbine, triangle identities kept) and the
+phase-2 path follows.
+
+``terminated``: collision with the turbine or the ground, leaving the working volume, or a
+non-finite state (then ``info["termination"]`` says which). ``truncated``: the mission is complete
+(``info["mission_complete"]``) or the time limit is reached. ``info["metrics"]`` holds the
+:class:`~wt_inspect_env.metrics.InspectionMetrics` so far (as a dict).
+"""
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from .camera import GimbalCamera
+from .coverage import CoverageTracker, PyBulletOccluder, TriangleVisibility
+from .dynamics import quat_to_rotmat_np, yaw_to_quat
+from .env_config import EnvConfig
+from .metrics import MetricAccumulator, MetricsConfig
+from .mission import Mission, build_mission
+from .reference import InspectionReference, ReferenceConfig, ReferenceSample
+from .sim import QuadrotorSim, SimConfig
+from .spaces import OBS_SHAPES, ActionScaling
+from .validation import check_array
+from .wind import make_wind
+
+
+def _box(shape: tuple[int, ...], lo: float = -np.inf, hi: float = np.inf) -> spaces.Box:
+    return spaces.Box(low=lo, high=hi, shape=shape, dtype=np.float32)
+
+
+class WindTurbineInspectionEnv(gym.Env):
+    """Quadrotor wind-turbine inspection (see the module docstring and :class:`EnvConfig`)."""
+
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
+
+    def __init__(self, render_mode: str | None = None, **options: Any) -> None:
+        super().__init__()
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']}")
+        self.render_mode = render_mode
+        self.config = cfg = EnvConfig.from_kwargs(**options)
+        self.params = cfg.drone
+        self.scaling = ActionScaling.from_params(self.params)
+        self.dt = 1.0 / cfg.ctrl_hz
+        self._camera_every = max(1, int(round(cfg.ctrl_hz / cfg.camera_hz)))
+
+        self.mission: Mission = build_mission(cfg)
+        self.wind = make_wind(cfg.wind)
+        self.sim = QuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz),
+                                wind=self.wind, obstacles=self.mission.turbines[0].mesh)
+        if render_mode == "human":
+            self.sim.enable_gui()  # pragma: no cover - needs a display
+        self.camera = GimbalCamera(cfg.camera)
+        occluder = PyBulletOccluder(self.sim.client) if cfg.occlusion else None
+        t0 = self.mission.turbines[0]
+        ins = self.mission.inspected
+        self.visibility = TriangleVisibility(self.camera, t0.blade_vertices[ins], t0.blade_normals[ins], occluder)
+        self.n_triangles = len(self.mission.inspected)
+        self.coverage = CoverageTracker(self.n_triangles, areas=t0.blade_areas[self.mission.inspected])
+        self.metrics = MetricAccumulator(self.n_triangles, MetricsConfig(
+            d_ref=cfg.standoff, safety_margin=cfg.safety_margin, pixel_ifov_rad=cfg.camera.ifov_rad))
+        self.reference = InspectionReference(
+            self.mission.points, self.mission.normals, self.mission.s, self.mission.phase,
+            ReferenceConfig(speed=cfg.reference_speed, mode=cfg.reference_mode, standoff=cfg.standoff))
+        self.time_limit = cfg.time_limit_s or (1.5 * self.reference.nominal_duration + 30.0)
+        lo, hi = self.mission.working_volume(cfg.working_margin)
+        self._vol_lo, self._vol_hi = lo, hi
+
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
+                  "progress": (0.0, 1.0)}
+        self.observation_space = spaces.Dict(
+            {k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()})
+        self._hover = self.scaling.hover_action()
+        self._sample: ReferenceSample | None = None
+        self._steps = 0
+        self._phase_index = 0
+        self._geometry_index = 0
+        self._closed = False
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        super().reset(seed=seed)
+        if options:
+            raise ValueError(f"reset options are not supported, got {options!r}")
+        self.wind.reset(int(self.np_random.integers(2**63 - 1)))
+        self._set_phase(0)
+        self._sample = self.reference.reset()
+        start = self._sample.ideal_position.copy()
+        if self.config.start_noise > 0:
+            start = start + self.np_random.normal(0.0, self.config.start_noise, 3)
+        a = self._sample.point - start
+        state = np.zeros(10)
+        state[0:3] = start
+        state[6:10] = yaw_to_quat(math.atan2(a[1], a[0]))
+        self.sim.reset(state)
+        self.coverage.reset()
+        self.metrics.reset()
+        self._steps = 0
+        self._last_new = 0
+        self._frame()
+        self.metrics.add(0.0, state[0:3], state[6:10], self._sample.point, self._sample.normal,
+                         n_new=self._last_new, n_visible=self._last_visible)
+        return self._observation(), self._info({})
+
+    def step(self, action):
+        if self._sample is None:
+            raise RuntimeError("call reset() before step()")
+        a = check_array("action", action, (4,))
+        command = self.scaling.to_command(a)
+        self.sim.step(command)
+        self._steps += 1
+        state = self.sim.state
+        finite = bool(np.isfinite(state).all())
+        pos = state[0:3] if finite else np.zeros(3)
+        self._sample = self.reference.step(self.dt, pos if finite else self._sample.ideal_position)
+        if self._sample.hold_started:
+            self._set_phase(self._phase_index + 1)
+        new = 0
+        self._last_visible = 0
+        if finite and self._steps % self._camera_every == 0:
+            new = self._frame()
+        collision = self.sim.in_collision
+        if finite:
+            self.metrics.add(self.sim.time, pos, state[6:10], self._sample.point, self._sample.normal,
+                             collision=collision, n_new=new, n_visible=self._last_visible,
+                             inspecting=not self._sample.waiting_for_phase_change)
+        termination = self._termination(state, finite, collision)
+        reward, terms = self._reward(a, state, new, termination is not None)
+        terminated = termination is not None
+        complete = bool(self._sample.done)
+        truncated = not terminated and (complete or self.sim.time >= self.time_limit - 1e-9)
+        info = self._info(terms)
+        info["termination"] = termination
+        info["mission_complete"] = complete
+        obs = self._observation() if finite else self._observation(safe=True)
+        return obs, float(reward), terminated, truncated, info
+
+    def render(self):
+        if self.render_mode != "rgb_array":
+            return None
+        from .render import render_views
+        return render_views(self)
+
+    def close(self) -> None:
+        if not self._closed:
+            self.sim.close()
+            self._closed = True
+        super().close()
+
+    # ------------------------------------------------------------------ hooks
+    def _observation(self, safe: bool = False) -> dict[str, np.ndarray]:
+        state = np.nan_to_num(self.sim.state, nan=0.0, posinf=0.0, neginf=0.0) if safe else self.sim.state
+        rates = np.nan_to_num(self.sim.body_rates) if safe else self.sim.body_rates
+        s = self._sample
+        q = state[6:10]
+        nq = float(np.linalg.norm(q))
+        q = q / nq if nq > 1e-9 else np.array([0.0, 0.0, 0.0, 1.0])
+        f32 = np.float32
+        return {
+            "position": state[0:3].astype(f32), "velocity_body": state[3:6].astype(f32),
+            "quaternion": np.clip(q, -1.0, 1.0).astype(f32), "body_rates": rates.astype(f32),
+            "point": s.point.astype(f32), "normal": np.clip(s.normal, -1.0, 1.0).astype(f32),
+            "point_velocity": s.velocity.astype(f32),
+            "coverage": np.array([min(1.0, self.coverage.coverage)], dtype=f32),
+            "progress": np.array([min(1.0, max(0.0, s.progress))], dtype=f32),
+        }
+
+    def _reward(self, action: np.ndarray, state: np.ndarray, n_new: int, crashed: bool
+                ) -> tuple[float, dict[str, float]]:
+        w = self.config.reward
+        dt = self.dt
+        if not np.isfinite(state).all():
+            return -w.crash, {"coverage": 0.0, "distance": 0.0, "centering": 0.0, "effort": 0.0,
+                              "crash": -w.crash}
+        e = float(np.linalg.norm(state[0:3] - self._sample.ideal_position))
+        a = self._sample.point - state[0:3]
+        axy = math.hypot(a[0], a[1])
+        fwd = quat_to_rotmat_np(state[6:10])[:, 0]
+        h = (fwd[0] * a[0] + fwd[1] * a[1]) / axy if axy > 1e-9 else 0.0
+        terms = {
+            "coverage": w.coverage * n_new / self.n_triangles,
+            "distance": w.distance * dt * math.exp(-0.5 * (e / w.distance_scale) ** 2),
+            "centering": w.centering * dt * h,
+            "effort": -w.effort * dt * float(np.sum((action - self._hover) ** 2)),
+            "crash": -w.crash if crashed else 0.0,
+        }
+        return sum(terms.values()), terms
+
+    def _termination(self, state: np.ndarray, finite: bool, collision: bool) -> str | None:
+        if not finite:
+            return "non_finite_state"
+        if collision:
+            return "collision"
+        p = state[0:3]
+        if np.any(p < self._vol_lo) or np.any(p > self._vol_hi):
+            return "left_working_volume"
+        return None
+
+    def _info(self, terms: dict[str, float]) -> dict[str, Any]:
+        s = self._sample
+        return {
+            "reward_terms": terms,
+            "metrics": self.metrics.result().to_dict(),
+            "coverage": self.coverage.coverage,
+            "phase": s.phase,
+            "time": self.sim.time,
+            "waiting_for_phase_change": s.waiting_for_phase_change,
+            "ideal_position": s.ideal_position.copy(),
+            "wind": self.sim.wind_velocity.copy(),
+        }
+
+    # ------------------------------------------------------------------ internals
+    def _set_phase(self, index: int) -> None:
+        """Use turbine geometry of phase ``index`` for collisions and coverage (rotor turned)."""
+        index = min(index, len(self.mission.turbines) - 1)
+        if index == self._phase_index and self._steps > 0:
+            return
+        turb = self.mission.turbines[index]
+        if index != self._geometry_index:
+            self.sim.set_obstacles(turb.mesh)
+            self.visibility.set_mesh(turb.blade_vertices[self.mission.inspected],
+                                     turb.blade_normals[self.mission.inspected])
+            self._geometry_index = index
+        self._phase_index = index
+
+    def _frame(self) -> int:
+        """Take one camera frame; returns how many triangles were seen for the first time."""
+        state = self.sim.state
+        origin, R = self.camera.pose(state[0:3], state[6:10])
+        idx = self.visibility.visible_indices(origin, R)
+        self._last_visible = len(idx)
+        new = self.coverage.update_indices(idx)
+        self._last_new = new
+        return new

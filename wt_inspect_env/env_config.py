@@ -1,0 +1,145 @@
+"""Configuration of the inspection environments (keyword options of ``gym.make``).
+
+Everything a user can set is a field of :class:`EnvConfig`; ``gym.make(id, **options)`` accepts the
+same names, nested options as dataclasses or plain dicts (``turbine={"blade_length": 40}``,
+``wind={"type": "gust", "mean_speed": 7}``, ``camera={"focal_length_mm": 20}``). Unknown names are
+a ``ValueError`` listing the valid ones.
+"""
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+from .camera import CameraConfig
+from .quadrotor import QuadrotorParams, get_preset
+from .reference import MODES as REFERENCE_MODES
+from .turbine import TurbineSpec
+from .validation import check_choice, check_finite, check_positive, check_unknown_options
+
+TASKS = ("full", "blade", "surface")
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Weights of the reward terms (each term is also reported in ``info["reward_terms"]``).
+
+    * ``coverage``: per unit of blade coverage newly gained (100 -> 1 per percent).
+    * ``distance``: per second, times ``exp(-e^2 / (2 sigma^2))`` with ``e`` the 3-D distance of the
+      drone from its ideal stand-off pose and ``sigma = distance_scale``; bounded and positive so
+      that staying alive near the pose pays, and a crash never looks attractive.
+    * ``centering``: per second, times the heading function ``h`` in [-1, 1] (the paper's CM).
+    * ``effort``: per second, times the squared distance of the normalised action from hover.
+    * ``crash``: one-off penalty on collision, leaving the working volume or a non-finite state.
+    """
+
+    coverage: float = 100.0
+    distance: float = 1.0
+    distance_scale: float = 1.0
+    centering: float = 0.5
+    effort: float = 0.05
+    crash: float = 100.0
+
+    def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            check_positive(f"reward {f.name}", getattr(self, f.name), allow_zero=f.name != "distance_scale")
+
+
+def _coerce(name: str, value: Any, cls: type) -> Any:
+    """A dataclass instance from an instance, a mapping of its fields, or None (defaults)."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        check_unknown_options(name, value.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**dict(value))
+    raise ValueError(f"{name} must be a {cls.__name__} or a dict of its fields, got {value!r}")
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """All options of :class:`~wt_inspect_env.env.WindTurbineInspectionEnv`.
+
+    task: ``full`` (the paper's two-phase mission over all blades), ``blade`` (the four surfaces of
+        one blade, phase 1), ``surface`` (one surface); ``blade_index`` / ``surface_index`` pick
+        which, counted in tour order among the phase-1 ones (0 = the first the tour visits).
+    turbine: a :class:`TurbineSpec` or dict of its fields; ``turbine_mesh``: a mesh file to load
+        instead (blade faces found by the loader).
+    wind: a wind spec for :func:`~wt_inspect_env.wind.make_wind` (default: the paper's gust, 4 m/s
+        along y, period 10 s, std 0.5 m/s); ``"none"`` for still air.
+    drone: preset name or :class:`QuadrotorParams`.
+    reference_speed / reference_mode / standoff: the inspection point's nominal speed [m/s], its
+        timing (``closed_loop`` waits for a lagging drone, ``open_loop`` is the paper's), d_ref [m].
+    safety_margin: SM band [m]. camera_hz: coverage frames per second (a real inspection camera
+        shoots a few frames per second; 10 Hz keeps the env fast). ctrl_hz / physics_hz: command and
+        physics rates. time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
+    start_noise: standard deviation [m] of a random offset of the start position from the ideal
+        stand-off pose (0 for reproducible MPC evaluation; RL training uses > 0).
+    working_margin: the working volume is the turbine's bounding box grown by this [m].
+    occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
+    """
+
+    task: str = "full"
+    turbine: Any = None
+    turbine_mesh: str | None = None
+    wind: Any = "gust"
+    drone: Any = "matrice100"
+    camera: Any = None
+    reward: Any = None
+    reference_speed: float = 0.7
+    reference_mode: str = "closed_loop"
+    standoff: float = 7.0
+    safety_margin: float = 1.0
+    planner_spacing: float = 0.1
+    rotor_turn_deg: float = 120.0
+    blade_index: int = 0
+    surface_index: int = 0
+    ctrl_hz: float = 100.0
+    physics_hz: float = 400.0
+    camera_hz: float = 10.0
+    time_limit_s: float | None = None
+    start_noise: float = 0.0
+    working_margin: float = 30.0
+    occlusion: bool = True
+
+    def __post_init__(self) -> None:
+        put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
+        check_choice("task", self.task, TASKS)
+        if self.turbine_mesh is None:
+            put("turbine", _coerce("turbine", self.turbine, TurbineSpec))
+        elif self.turbine is not None:
+            raise ValueError("give either turbine (a spec) or turbine_mesh (a file), not both")
+        put("camera", _coerce("camera", self.camera, CameraConfig))
+        put("reward", _coerce("reward", self.reward, RewardConfig))
+        if isinstance(self.drone, str):
+            put("drone", get_preset(self.drone))
+        elif not isinstance(self.drone, QuadrotorParams):
+            raise ValueError(f"drone must be a preset name or QuadrotorParams, got {self.drone!r}")
+        check_positive("reference_speed", self.reference_speed)
+        check_choice("reference_mode", self.reference_mode, REFERENCE_MODES)
+        check_positive("standoff", self.standoff)
+        check_positive("safety_margin", self.safety_margin)
+        check_positive("planner_spacing", self.planner_spacing)
+        check_finite("rotor_turn_deg", self.rotor_turn_deg)
+        for name in ("blade_index", "surface_index"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
+        check_positive("ctrl_hz", self.ctrl_hz)
+        check_positive("physics_hz", self.physics_hz)
+        check_positive("camera_hz", self.camera_hz)
+        if self.camera_hz > self.ctrl_hz:
+            raise ValueError(f"camera_hz must not exceed ctrl_hz ({self.ctrl_hz}), got {self.camera_hz!r}")
+        if self.time_limit_s is not None:
+            check_positive("time_limit_s", self.time_limit_s)
+        check_positive("start_noise", self.start_noise, allow_zero=True)
+        check_positive("working_margin", self.working_margin)
+        if not isinstance(self.occlusion, bool):
+            raise ValueError(f"occlusion must be a bool, got {self.occlusion!r}")
+
+    @classmethod
+    def from_kwargs(cls, **options: Any) -> "EnvConfig":
+        """Build from ``gym.make`` keyword options; unknown names raise ``ValueError``."""
+        check_unknown_options("environment", options.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**options)
