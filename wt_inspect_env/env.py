@@ -112,6 +112,7 @@ class WindTurbineInspectionEnv(gym.Env):
         self.coverage.reset()
         self.metrics.reset()
         self._steps = 0
+        self._done_time: float | None = None
         self._last_new = 0
         self._frame()
         self.metrics.add(0.0, state[0:3], state[6:10], self._sample.point, self._sample.normal,
@@ -143,7 +144,9 @@ class WindTurbineInspectionEnv(gym.Env):
         termination = self._termination(state, finite, collision)
         reward, terms = self._reward(a, state, new, termination is not None)
         terminated = termination is not None
-        complete = bool(self._sample.done)
+        if self._sample.done and self._done_time is None:
+            self._done_time = self.sim.time
+        complete = self._done_time is not None and self.sim.time >= self._done_time + self.config.end_hold_s - 1e-9
         truncated = not terminated and (complete or self.sim.time >= self.time_limit - 1e-9)
         info = self._info(terms)
         info["termination"] = termination

@@ -78,6 +78,11 @@ class EnvConfig:
         stand-off pose (0 for reproducible MPC evaluation; RL training uses > 0).
     working_margin: the working volume is the turbine's bounding box grown by this [m].
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
+    planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
+        ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and
+        ``rotor_turn_deg`` come from the fields above.
+    end_hold_s: after the inspection point reaches the end of the path, the episode goes on for
+        this long (the drone catches up and the last frames are taken) before it is truncated.
     """
 
     task: str = "full"
@@ -92,6 +97,7 @@ class EnvConfig:
     standoff: float = 7.0
     safety_margin: float = 1.0
     planner_spacing: float = 0.1
+    planner: Any = None
     rotor_turn_deg: float = 120.0
     blade_index: int = 0
     surface_index: int = 0
@@ -102,6 +108,7 @@ class EnvConfig:
     start_noise: float = 0.0
     working_margin: float = 30.0
     occlusion: bool = True
+    end_hold_s: float = 2.0
 
     def __post_init__(self) -> None:
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
@@ -135,6 +142,16 @@ class EnvConfig:
             check_positive("time_limit_s", self.time_limit_s)
         check_positive("start_noise", self.start_noise, allow_zero=True)
         check_positive("working_margin", self.working_margin)
+        check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
+        if self.planner is None:
+            put("planner", {})
+        elif not isinstance(self.planner, Mapping):
+            raise ValueError(f"planner must be a dict of PlannerConfig options, got {self.planner!r}")
+        else:
+            owned = {"standoff", "spacing", "rotor_turn_deg"} & set(self.planner)
+            if owned:
+                raise ValueError(f"planner options {sorted(owned)} are set by the environment's standoff, "
+                                 f"planner_spacing and rotor_turn_deg fields")
         if not isinstance(self.occlusion, bool):
             raise ValueError(f"occlusion must be a bool, got {self.occlusion!r}")
 

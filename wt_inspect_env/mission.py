@@ -16,6 +16,7 @@ Coverage always counts triangles by their index in the full turbine's blade arra
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -24,6 +25,7 @@ import trimesh
 from .env_config import EnvConfig
 from .planner import InspectionPlan, PlannerConfig, plan_inspection
 from .turbine import TurbineMesh, build_turbine, load_turbine_mesh
+from .validation import check_unknown_options
 
 
 @dataclass(frozen=True)
@@ -84,7 +86,11 @@ def single_blade_turbine(turb: TurbineMesh, blade: int) -> tuple[TurbineMesh, np
 def build_mission(cfg: EnvConfig) -> Mission:
     """Plan the turbine of ``cfg`` and cut out the task's part (see the module docstring)."""
     turb = _turbine(cfg)
-    pcfg = PlannerConfig(standoff=cfg.standoff, spacing=cfg.planner_spacing, rotor_turn_deg=cfg.rotor_turn_deg)
+    check_unknown_options("planner", cfg.planner.keys(), [f.name for f in dataclasses.fields(PlannerConfig)])
+    pcfg = PlannerConfig(standoff=cfg.standoff, spacing=cfg.planner_spacing, rotor_turn_deg=cfg.rotor_turn_deg,
+                         **cfg.planner)
+    if cfg.task == "blade":
+        return _blade_mission(cfg, turb, pcfg)
     plan = plan_inspection(turb, pcfg)
     phase1_stops = [t.surface for t in plan.tour if t.phase == 1]
 
@@ -106,7 +112,10 @@ def build_mission(cfg: EnvConfig) -> Mission:
         return Mission("surface", plan, *_slice(plan, sel), turbines=(plan.turbine_phase1,),
                        inspected=np.sort(plan.surfaces[sid].triangles), surfaces=(sid,))
 
-    # blade: rank blades by height of their centroid (0 = highest)
+
+
+def _blade_mission(cfg: EnvConfig, turb: TurbineMesh, pcfg: PlannerConfig) -> Mission:
+    """One blade planned on its own (blades ranked by the height of their centroid, 0 = highest)."""
     blades = np.unique(turb.triangle_blade)
     heights = [turb.blade_centroids[turb.triangle_blade == b, 2].mean() for b in blades]
     order = blades[np.argsort(heights)[::-1]]
@@ -121,5 +130,5 @@ def build_mission(cfg: EnvConfig) -> Mission:
     sel = sel[sel <= last]
     p1_surfaces = [t.surface for t in sub_plan.tour if t.phase == 1]
     inspected = np.sort(np.concatenate([keep[sub_plan.surfaces[i].triangles] for i in p1_surfaces]))
-    return Mission("blade", sub_plan, *_slice(sub_plan, sel), turbines=(plan.turbine_phase1,),
+    return Mission("blade", sub_plan, *_slice(sub_plan, sel), turbines=(turb,),
                    inspected=inspected, surfaces=tuple(p1_surfaces))
