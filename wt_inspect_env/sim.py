@@ -98,6 +98,10 @@ def _mesh_arrays(mesh: Any) -> tuple[list, list]:
     return v.tolist(), f.astype(np.int64).ravel().tolist()
 
 
+_PARKED = (0.0, 0.0, -1.0e5)      # where unused obstacle bodies wait (far below the ground)
+_MAX_CACHED_OBSTACLES = 4
+
+
 class QuadrotorSim:
     """A PyBullet quadrotor with a PX4-like rate loop, motor lag, drag and wind (see module doc)."""
 
@@ -146,6 +150,7 @@ class QuadrotorSim:
                            if config.drag else (0.0,) * 3)
         self._has_drag = config.drag and (any(self._lin_drag) or any(self._quad_drag))
 
+        self._obstacle_key: Any = obstacles
         self._obstacle_arrays: tuple[list, list] | None = (
             None if obstacles is None else _mesh_arrays(obstacles))
         self._last_wind = np.zeros(3)
@@ -186,8 +191,9 @@ class QuadrotorSim:
                                                  physicsClientId=cid)
             self._obstacle = -1
             self._obstacle_shape = -1
+            self._obstacle_cache: dict[int, tuple[int, int, Any, tuple[list, list]]] = {}
             if self._obstacle_arrays is not None:
-                self._create_obstacle(*self._obstacle_arrays)
+                self._create_obstacle(*self._obstacle_arrays, key=self._obstacle_key)
         except BaseException:
             self.close()
             raise
@@ -251,26 +257,49 @@ class QuadrotorSim:
             pass
 
     def set_obstacles(self, mesh: Any) -> None:
-        """Replace the static obstacle (turbine) collision mesh; ``None`` removes it."""
+        """Replace the static obstacle (turbine) collision mesh; ``None`` removes it.
+
+        Obstacle bodies are cached per mesh object and *parked* far below the ground when not in
+        use, instead of being removed: the rotor-turn swap of a two-phase mission happens every
+        episode, and PyBullet cannot free a removed concave mesh shape (it warns and leaks), so
+        re-creating it would grow memory with every reset. Cached bodies are not part of the
+        world while parked (no contacts, no ray hits near the turbine).
+        """
         self._check_open()
-        arrays = None if mesh is None else _mesh_arrays(mesh)
         cid = self._client
         if self._obstacle >= 0:
-            p.removeBody(self._obstacle, physicsClientId=cid)
-            p.removeCollisionShape(self._obstacle_shape, physicsClientId=cid)
+            p.resetBasePositionAndOrientation(self._obstacle, _PARKED, (0, 0, 0, 1), physicsClientId=cid)
             self._obstacle = self._obstacle_shape = -1
-        self._obstacle_arrays = arrays
-        if arrays is not None:
-            self._create_obstacle(*arrays)
+        self._obstacle_key = mesh
+        if mesh is None:
+            self._obstacle_arrays = None
+            return
+        cached = self._obstacle_cache.get(id(mesh))
+        if cached is not None and cached[2] is mesh:
+            self._obstacle, self._obstacle_shape = cached[0], cached[1]
+            self._obstacle_arrays = cached[3]
+            p.resetBasePositionAndOrientation(self._obstacle, (0, 0, 0), (0, 0, 0, 1), physicsClientId=cid)
+            return
+        self._obstacle_arrays = _mesh_arrays(mesh)
+        self._create_obstacle(*self._obstacle_arrays, key=mesh)
 
-    def _create_obstacle(self, verts: list, idx: list) -> None:
+    def _create_obstacle(self, verts: list, idx: list, key: Any = None) -> None:
         cid = self._client
         shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
                                        flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
         if shape < 0:  # pragma: no cover
             raise ValueError("PyBullet rejected the obstacle mesh")
+        # A visual shape of the same triangles, so rgb_array renders show the turbine.
+        visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx,
+                                     rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
         self._obstacle_shape = shape
-        self._obstacle = p.createMultiBody(0.0, shape, physicsClientId=cid)
+        self._obstacle = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
+        if key is not None:
+            if len(self._obstacle_cache) >= _MAX_CACHED_OBSTACLES:
+                old_key = next(iter(self._obstacle_cache))
+                old = self._obstacle_cache.pop(old_key)
+                p.removeBody(old[0], physicsClientId=cid)
+            self._obstacle_cache[id(key)] = (self._obstacle, shape, key, (verts, idx))
 
     @property
     def obstacle_id(self) -> int:

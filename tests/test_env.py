@@ -1,0 +1,193 @@
+"""The Gymnasium environments: API conformance, determinism, independence, termination, bad input."""
+import gymnasium as gym
+import numpy as np
+import pybullet as p
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import wt_inspect_env  # noqa: F401  (registers the ids)
+from wt_inspect_env import ENV_IDS
+
+
+def make(env_id="WindTurbineInspection-Surface-v0", **kw):
+    return gym.make(env_id, **kw)
+
+
+@pytest.mark.parametrize("env_id", list(ENV_IDS))
+def test_check_env(env_id):
+    env = make(env_id)
+    check_env(env.unwrapped, skip_render_check=True)
+    env.close()
+
+
+def test_sb3_check_env():
+    sb3 = pytest.importorskip("stable_baselines3.common.env_checker")
+    env = make()
+    sb3.check_env(env.unwrapped, warn=True)
+    env.close()
+
+
+def _rollout(env, seed, n=150):
+    obs, _ = env.reset(seed=seed)
+    rng = np.random.default_rng(123)
+    hover = env.unwrapped.scaling.hover_action()
+    traj = [obs["position"].copy()]
+    for _ in range(n):
+        a = np.clip(hover + rng.normal(0, 0.05, 4), -1, 1).astype(np.float32)
+        obs, r, term, trunc, info = env.step(a)
+        traj.append(np.concatenate([obs["position"], obs["quaternion"], [r]]))
+        if term or trunc:
+            break
+    return np.concatenate([np.ravel(t) for t in traj])
+
+
+def test_same_seed_same_trajectory_different_seed_differs():
+    kw = dict(wind={"type": "dryden", "mean_speed": 4.0}, start_noise=0.3)
+    a, b = make(**kw), make(**kw)
+    ta, tb = _rollout(a, seed=7), _rollout(b, seed=7)
+    np.testing.assert_array_equal(ta, tb)
+    tc = _rollout(a, seed=8)
+    assert ta.shape != tc.shape or not np.allclose(ta, tc)
+    a.close(); b.close()
+
+
+def test_environments_in_one_process_are_independent():
+    kw = dict(wind={"type": "dryden", "mean_speed": 4.0})
+    solo = make(**kw)
+    ref = _rollout(solo, seed=3, n=80)
+    solo.close()
+    e1, e2 = make(**kw), make(**kw)
+    e1.reset(seed=3); e2.reset(seed=99)
+    hover = e1.unwrapped.scaling.hover_action()
+    # interleave: e2 takes wild actions between e1's steps; e1 must not notice
+    rng = np.random.default_rng(123)
+    obs, _ = e1.reset(seed=3)
+    out = [obs["position"].copy()]
+    for _ in range(80):
+        e2.step(e2.action_space.sample())
+        act = np.clip(hover + rng.normal(0, 0.05, 4), -1, 1).astype(np.float32)
+        obs, r, term, trunc, _ = e1.step(act)
+        out.append(np.concatenate([obs["position"], obs["quaternion"], [r]]))
+        if term or trunc:
+            break
+    np.testing.assert_array_equal(np.concatenate([np.ravel(t) for t in out]), ref)
+    e1.close(); e2.close()
+
+
+def test_close_frees_the_pybullet_client():
+    env = make()
+    env.reset(seed=0)
+    cid = env.unwrapped.sim.client
+    assert p.getConnectionInfo(physicsClientId=cid)["isConnected"] == 1
+    env.close()
+    assert p.getConnectionInfo(physicsClientId=cid)["isConnected"] == 0
+
+
+def test_observation_layout_and_hover_start():
+    env = make(wind="none")
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    assert set(obs) == set(u.observation_space.spaces)
+    # starts at the ideal stand-off pose d_ref from the point along the horizontal normal
+    a = obs["point"] - obs["position"]
+    assert np.hypot(a[0], a[1]) == pytest.approx(u.config.standoff, abs=1e-4)
+    obs2, r, term, trunc, info = env.step(u.scaling.hover_action())
+    assert not term and not trunc
+    assert np.linalg.norm(obs2["position"] - obs["position"]) < 0.01
+    assert r == pytest.approx(sum(info["reward_terms"].values()))
+    env.close()
+
+
+def test_terminates_on_collision_with_the_blade():
+    env = make(wind="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    # put the drone onto the blade surface: the contact must end the episode as a crash
+    state = u.sim.state.copy()
+    state[0:3] = u.mission.points[0] + 0.05 * u.mission.normals[0]
+    u.sim.reset(state)
+    _, r, term, trunc, info = env.step(u.scaling.hover_action())
+    assert term and not trunc
+    assert info["termination"] == "collision"
+    assert info["reward_terms"]["crash"] == -u.config.reward.crash
+    env.close()
+
+
+def test_terminates_when_leaving_the_working_volume():
+    env = make(wind="none", working_margin=1.0)
+    env.reset(seed=0)
+    u = env.unwrapped
+    up = np.array([0, 0, 0, 1.0], dtype=np.float32)   # full thrust: climbs out of the box
+    for _ in range(2000):
+        _, _, term, trunc, info = env.step(up)
+        if term or trunc:
+            break
+    assert term and info["termination"] == "left_working_volume"
+    env.close()
+
+
+def test_coverage_grows_while_facing_the_surface_and_counts_new_triangles_once():
+    env = make(wind="none")
+    obs, info = env.reset(seed=0)
+    u = env.unwrapped
+    c0 = info["coverage"]
+    assert c0 > 0          # the first frame at the stand-off pose already sees triangles
+    total_cov_reward = 0.0
+    for _ in range(50):
+        obs, r, term, trunc, info = env.step(u.scaling.hover_action())
+        total_cov_reward += info["reward_terms"]["coverage"]
+    # hovering in still air sees the same triangles again: no new coverage, no coverage reward
+    assert info["coverage"] == pytest.approx(c0)
+    assert total_cov_reward == 0.0
+    assert info["metrics"]["redundancy"] > 1.0
+    env.close()
+
+
+def test_phase_change_swaps_geometry_and_keeps_coverage():
+    env = gym.make("WindTurbineInspection-v0", wind="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    seen_before = u.coverage.counts.copy()
+    v1 = u.visibility.vertices.copy()
+    u._set_phase(1)
+    assert not np.allclose(u.visibility.vertices, v1)       # blades turned
+    np.testing.assert_array_equal(u.coverage.counts, seen_before)
+    # triangle identity: triangle i turned about the rotor axis keeps its distance to the hub centre
+    c = u.mission.turbines[0].rotor_center
+    np.testing.assert_allclose(np.linalg.norm(u.visibility.vertices - c, axis=2), np.linalg.norm(v1 - c, axis=2),
+                               atol=1e-9)
+    env.close()
+
+
+@pytest.mark.parametrize("bad", [[np.nan, 0, 0, 0], [0, 0, 0], [0, 0, 0, 2.0]])
+def test_bad_actions_raise_naming_the_action(bad):
+    env = make()
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="action"):
+        env.step(np.asarray(bad, dtype=np.float32))
+    env.close()
+
+
+@pytest.mark.parametrize("kw, field", [
+    (dict(colour="red"), "colour"),
+    (dict(task="hover"), "task"),
+    (dict(camera={"focal_length_mm": -1}), "focal_length_mm"),
+    (dict(camera={"zoom": 2}), "zoom"),
+    (dict(wind={"type": "hurricane"}), "wind type"),
+    (dict(wind={"type": "gust", "mean_speed": float("nan")}), "mean_speed"),
+    (dict(drone="ingenuity"), "drone preset"),
+    (dict(standoff=0.0), "standoff"),
+    (dict(turbine={"blade_length": -3}), "blade_length"),
+])
+def test_bad_options_raise_naming_the_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        make(**kw)
+
+
+def test_rgb_array_render():
+    env = make(render_mode="rgb_array")
+    env.reset(seed=0)
+    img = env.render()
+    assert img.dtype == np.uint8 and img.shape == (240, 640, 3)
+    assert img.std() > 0     # not a blank frame
+    env.close()
