@@ -191,3 +191,18 @@ def test_rgb_array_render():
     assert img.dtype == np.uint8 and img.shape == (240, 640, 3)
     assert img.std() > 0     # not a blank frame
     env.close()
+
+
+def test_camera_does_not_see_its_own_drone():
+    """Regression: rays from the camera (on the drone's collision box) must not hit the drone."""
+    env = make(wind="none")
+    env.reset(seed=0)
+    u = env.unwrapped
+    state = u.sim.state
+    origin, R = u.camera.pose(state[0:3], state[6:10])
+    # targets all around the camera, a few metres away, in open air: nothing may block them
+    dirs = np.random.default_rng(0).normal(size=(200, 3))
+    dirs[:, 2] = np.abs(dirs[:, 2])          # upwards: away from the ground
+    targets = origin + 1.5 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+    assert not u.visibility.occluder.occluded(origin, targets).any()
+    env.close()

@@ -51,11 +51,14 @@ class PyBulletOccluder:
     Rays start at the optical centre, which lies inside (or on) the drone's own collision shape;
     Bullet does not report a hit for a ray that starts inside a convex shape, and hits on any body
     listed in ``ignore_body_ids`` (e.g. the drone, if its shape is concave) are skipped by
-    re-casting the ray from just past that hit.
+    re-casting the ray from just past that hit. ``collision_filter_mask`` is passed to Bullet's
+    ray test: bodies whose collision group is not in the mask are invisible to the rays (the
+    simulator puts the drone in its own group, so ``sim.RAY_MASK_WITHOUT_DRONE`` skips it at no
+    cost - a camera inside or on the drone's box otherwise "sees" the drone first).
     """
 
     def __init__(self, client_id: int, *, ignore_body_ids: tuple[int, ...] | list[int] = (),
-                 num_threads: int = 1) -> None:
+                 num_threads: int = 1, collision_filter_mask: int = -1) -> None:
         import pybullet as p
 
         self._p = p
@@ -68,6 +71,7 @@ class PyBulletOccluder:
         self.client_id = int(client_id)
         self.ignore_body_ids = frozenset(int(b) for b in ignore_body_ids)
         self.num_threads = int(num_threads)
+        self.collision_filter_mask = int(collision_filter_mask)
         self.max_batch = int(getattr(p, "MAX_RAY_INTERSECTION_BATCH_SIZE", 16384)) - 1
 
     def occluded(self, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
@@ -81,6 +85,7 @@ class PyBulletOccluder:
         for start in range(0, n, self.max_batch):
             stop = min(n, start + self.max_batch)
             res = self._p.rayTestBatch(froms[start:stop], targets[start:stop], numThreads=self.num_threads,
+                                       collisionFilterMask=self.collision_filter_mask,
                                        physicsClientId=self.client_id)
             if not self.ignore_body_ids:
                 out[start:stop] = [r[0] != -1 for r in res]
@@ -103,7 +108,8 @@ class PyBulletOccluder:
             if length < 1e-6:
                 return False
             start = pos + d * (1e-4 / length)
-            hit = self._p.rayTestBatch([start], [target], physicsClientId=self.client_id)[0]
+            hit = self._p.rayTestBatch([start], [target], collisionFilterMask=self.collision_filter_mask,
+                                       physicsClientId=self.client_id)[0]
         return hit[0] != -1 and hit[0] not in self.ignore_body_ids
 
 

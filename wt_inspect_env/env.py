@@ -33,7 +33,7 @@ from .env_config import EnvConfig
 from .metrics import MetricAccumulator, MetricsConfig
 from .mission import Mission, build_mission
 from .reference import InspectionReference, ReferenceConfig, ReferenceSample
-from .sim import QuadrotorSim, SimConfig
+from .sim import RAY_MASK_WITHOUT_DRONE, QuadrotorSim, SimConfig
 from .spaces import OBS_SHAPES, ActionScaling
 from .validation import check_array
 from .wind import make_wind
@@ -66,7 +66,8 @@ class WindTurbineInspectionEnv(gym.Env):
         if render_mode == "human":
             self.sim.enable_gui()  # pragma: no cover - needs a display
         self.camera = GimbalCamera(cfg.camera)
-        occluder = PyBulletOccluder(self.sim.client) if cfg.occlusion else None
+        occluder = (PyBulletOccluder(self.sim.client, collision_filter_mask=RAY_MASK_WITHOUT_DRONE)
+                    if cfg.occlusion else None)
         t0 = self.mission.turbines[0]
         ins = self.mission.inspected
         self.visibility = TriangleVisibility(self.camera, t0.blade_vertices[ins], t0.blade_normals[ins], occluder)

@@ -98,6 +98,8 @@ def _mesh_arrays(mesh: Any) -> tuple[list, list]:
     return v.tolist(), f.astype(np.int64).ravel().tolist()
 
 
+DRONE_COLLISION_GROUP = 4
+RAY_MASK_WITHOUT_DRONE = 0xFFFF & ~DRONE_COLLISION_GROUP   # rays that do not see the drone itself
 _PARKED = (0.0, 0.0, -1.0e5)      # where unused obstacle bodies wait (far below the ground)
 _MAX_CACHED_OBSTACLES = 4
 
@@ -183,6 +185,10 @@ class QuadrotorSim:
                              localInertiaDiagonal=list(params.inertia),
                              activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
                              physicsClientId=cid)
+            # Own collision group: still collides with everything, but ray tests (camera
+            # occlusion) can exclude it with RAY_MASK_WITHOUT_DRONE.
+            p.setCollisionFilterGroupMask(self._body, -1, DRONE_COLLISION_GROUP, 0xFFFF,
+                                          physicsClientId=cid)
             self._ground = -1
             if config.ground:
                 plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
