@@ -71,9 +71,11 @@ def test_known_safety_fraction_and_distance_errors():
 def test_heading_function_follows_the_paper():
     m = compute_metrics(*circle(7.0, yaw_offset=math.radians(60)))
     assert m.centering_cm == pytest.approx(0.5) and m.mean_heading_error_deg == pytest.approx(60.0)
-    # pitching nose-down 30 deg: h uses the full attitude (cos 30), the level camera is still centred
+    # pitching nose-down 30 deg: the paper's h uses the full attitude (cos 30); the gimbal camera
+    # stays level and centred, so CM (the camera's heading) is 1
     m = compute_metrics(*circle(7.0, pitch=math.radians(30)))
-    assert m.centering_cm == pytest.approx(math.cos(math.radians(30)))
+    assert m.centering_body_cm == pytest.approx(math.cos(math.radians(30)))
+    assert m.centering_cm == pytest.approx(1.0)
     assert m.mean_heading_error_deg == pytest.approx(0.0, abs=1e-9)
     # facing away
     m = compute_metrics(*circle(7.0, yaw_offset=math.pi))

@@ -11,8 +11,14 @@ With ``a = p - x_drone`` and ``a_xy`` its horizontal part (the paper's notation)
 * distance ``d = |a_xy|`` (horizontal, as in the paper's cost and metric);
 * safety ``SM`` = share of inspecting samples with ``|d - d_ref| < safety_margin`` (1 m default;
   the paper used 0.1 m in the lab);
-* heading ``h = (R e_x) . a_xy / |a_xy|`` with R the body-to-world rotation (full attitude, as in
-  the paper) and centering ``CM`` = mean h; ``h = 0`` when the drone is straight above the point;
+* heading ``h = (R e_x) . a_xy / |a_xy|`` with R the body-to-world rotation (full attitude, the
+  paper's printed formula): its mean is ``centering_body_cm``. The camera sits on a roll/pitch
+  gimbal, so what decides whether the point is centred in the image is the *camera's* heading, the
+  horizontal projection of ``R e_x`` (normalised): its mean is the centering metric ``CM``
+  (``centering_cm``), which is also what the authors' implementation computed (a yaw-only heading).
+  The two differ when the drone tilts against the wind: at 4 m/s the default drone pitches ~17 deg
+  and ``h_body = cos 17 deg = 0.96`` while the image stays centred. ``h = 0`` when the drone is
+  straight above the point;
 * coverage = sum(n_new) / n_triangles; redundancy = sum(n_visible) / sum(n_new), the mean number of
   frames in which a seen triangle appeared, and ``mean_view_time_s`` the same in seconds (times
   the mean sample interval);
@@ -81,6 +87,7 @@ class InspectionMetrics:
     safety_margin_m: float
     safety_sm: float
     centering_cm: float
+    centering_body_cm: float
     min_heading: float
     mean_heading_error_deg: float
     max_heading_error_deg: float
@@ -107,6 +114,7 @@ class _Totals:
     n_insp: int = 0
     safe: int = 0
     sum_h: float = 0.0
+    sum_hb: float = 0.0
     min_h: float = math.inf
     sum_herr: float = 0.0
     max_herr: float = -math.inf
@@ -156,7 +164,8 @@ def _finish(tot: _Totals, n_triangles: int | None, config: MetricsConfig) -> Ins
         redundancy=redundancy, mean_view_time_s=redundancy * dt_mean,
         safety_margin_m=config.safety_margin,
         safety_sm=tot.safe / ni if ni else nan,
-        centering_cm=tot.sum_h / ni if ni else nan, min_heading=tot.min_h if ni else nan,
+        centering_cm=tot.sum_h / ni if ni else nan, centering_body_cm=tot.sum_hb / ni if ni else nan,
+        min_heading=tot.min_h if ni else nan,
         mean_heading_error_deg=tot.sum_herr / ni if ni else nan, max_heading_error_deg=tot.max_herr if ni else nan,
         mean_distance_m=tot.sum_d / ni if ni else nan, min_distance_m=tot.min_d if ni else nan,
         max_distance_m=tot.max_d if ni else nan,
@@ -254,11 +263,13 @@ class MetricAccumulator:
         dot = bx0 * ax + bx1 * ay
         crs = bx0 * ay - bx1 * ax
         d = math.sqrt(ax * ax + ay * ay)
-        if d > 1e-9:
-            h = dot / d
+        bxy = math.sqrt(bx0 * bx0 + bx1 * bx1)
+        if d > 1e-9 and bxy > 1e-9:
+            hb = dot / d
+            h = hb / bxy
             herr = RAD2DEG * math.atan2(abs(crs), dot)
         else:
-            h, herr = 0.0, 90.0
+            h, hb, herr = 0.0, 0.0, 90.0
         u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
         a_n = ax * u0 + ay * u1 + az * u2
         dist3 = math.sqrt(ax * ax + ay * ay + az * az)
@@ -271,6 +282,7 @@ class MetricAccumulator:
         if abs_err < self.config.safety_margin:
             tot.safe += 1
         tot.sum_h += h
+        tot.sum_hb += hb
         tot.min_h = min(tot.min_h, h)
         tot.sum_herr += herr
         tot.max_herr = max(tot.max_herr, herr)
@@ -386,8 +398,10 @@ def compute_metrics(t, positions, quaternions, points, normals, *, collisions=No
         dot = bx0 * ax + bx1 * ay
         crs = bx0 * ay - bx1 * ax
         d = np.sqrt(ax * ax + ay * ay)
-        ok = d > 1e-9
-        h = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
+        bxy = np.sqrt(bx0 * bx0 + bx1 * bx1)
+        ok = (d > 1e-9) & (bxy > 1e-9)
+        hb = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
+        h = np.where(ok, hb / np.where(ok, bxy, 1.0), 0.0)
         herr = np.array([RAD2DEG * math.atan2(c, v) if k else 90.0
                          for c, v, k in zip(np.abs(crs).tolist(), dot.tolist(), ok.tolist())])
         u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
@@ -402,6 +416,7 @@ def compute_metrics(t, positions, quaternions, points, normals, *, collisions=No
         abs_err = np.abs(err)
         tot.safe = int(np.count_nonzero(abs_err < config.safety_margin))
         tot.sum_h, tot.min_h = _seq_sum(h), float(h.min())
+        tot.sum_hb = _seq_sum(hb)
         tot.sum_herr, tot.max_herr = _seq_sum(herr), float(herr.max())
         tot.sum_d, tot.min_d, tot.max_d = _seq_sum(d), float(d.min()), float(d.max())
         tot.sum_err2, tot.max_abs_err = _seq_sum(err * err), float(abs_err.max())
