@@ -154,7 +154,7 @@ def test_accumulator_gives_identical_numbers_to_batch():
     for k in (0, 7, 99):
         h, d = heading_and_distance(x[k], q[k], p[k])
         one = compute_metrics(t[k:k + 1], x[k:k + 1], q[k:k + 1], p[k:k + 1], nrm[k:k + 1])
-        assert (h, d) == (one.centering_cm, one.mean_distance_m)
+        assert (h, d) == (one.centering_body_cm, one.mean_distance_m)
     # and the batch numbers agree with a plain per-sample re-derivation
     a = p - x
     d = np.hypot(a[:, 0], a[:, 1])
