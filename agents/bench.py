@@ -1,0 +1,124 @@
+"""``wt-inspect bench train``: training throughput (simulator steps per second) with subprocess envs.
+
+Two numbers, each the median of several repeats after a warm-up:
+
+* ``vecenv``: the vectorised agent envs alone (``n_envs`` subprocesses, the recipe's wrappers,
+  VecNormalize), driven by random policy actions - the ceiling set by simulation and inter-process
+  traffic;
+* ``learn``: ``model.learn`` of the recipe's algorithm for the same number of steps - what a
+  training run really gets, including network forward passes and gradient updates.
+
+Steps are simulator control steps (100 Hz), so an ``action_repeat`` of k counts k per decision.
+The machine's other load is not controlled: run it on a quiet machine for comparable numbers.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from wt_inspect_env.env_config import TASKS
+from wt_inspect_env.validation import check_choice
+
+from .policy import ALGOS
+
+
+def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: int = 20_000,
+              repeats: int = 3, recipe: str | None = None, seed: int = 0) -> dict:
+    """Run the benchmark and return its summary (see the module docstring)."""
+    check_choice("algorithm", algo, ALGOS)
+    check_choice("task", task, TASKS)
+    for name, v in (("n_envs", n_envs), ("steps", steps), ("repeats", repeats)):
+        if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+            raise ValueError(f"{name} must be a positive integer, got {v!r}")
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .policy import algo_class
+    from .recipe import default_recipe_path, load_recipe
+    from .training import _algo_kwargs, _policy_kwargs, make_vec_env
+
+    rec = load_recipe(recipe or default_recipe_path(algo))
+    if rec.algo != algo:
+        raise ValueError(f"recipe is for algorithm {rec.algo!r}, not {algo!r}")
+    torch.set_num_threads(rec.torch_threads)
+    k = rec.spec.action_repeat
+    decisions = math.ceil(steps / (k * n_envs))     # vector steps
+    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs),
+                        gamma=float(rec.algo_kwargs.get("gamma", 0.99)))
+    rng = np.random.default_rng(seed)
+    vec_rates, learn_rates = [], []
+    try:
+        venv.seed(seed)
+        venv.reset()
+        for rep in range(repeats + 1):            # repeat 0 warms up
+            t0 = time.perf_counter()
+            n = 0
+            for _ in range(decisions):
+                a = np.clip(rng.normal(0.0, 0.3, (n_envs, 4)), -1, 1).astype(np.float32)
+                _, _, _, infos = venv.step(a)
+                n += sum(i.get("env_steps", k) for i in infos)
+            if rep > 0:
+                vec_rates.append(n / (time.perf_counter() - t0))
+        kw = _algo_kwargs(rec)
+        if algo == "ppo":   # one update per repeat at least
+            kw["n_steps"] = min(int(kw.get("n_steps", 2048)), decisions)
+            kw["batch_size"] = min(int(kw.get("batch_size", 64)), kw["n_steps"] * n_envs)
+        model = algo_class(algo)("MlpPolicy", venv, seed=seed, device="cpu",
+                                 policy_kwargs=_policy_kwargs(rec), **kw)
+        for rep in range(repeats + 1):
+            t0 = time.perf_counter()
+            model.learn(total_timesteps=decisions * n_envs, reset_num_timesteps=False)
+            if rep > 0:
+                learn_rates.append(decisions * n_envs * k / (time.perf_counter() - t0))
+    finally:
+        venv.close()
+    return {
+        "benchmark": "train",
+        "algo": algo, "task": task, "n_envs": n_envs, "action_repeat": k,
+        "steps_per_repeat": decisions * n_envs * k, "repeats": repeats,
+        "vecenv_steps_per_s": statistics.median(vec_rates),
+        "learn_steps_per_s": statistics.median(learn_rates),
+        "learn_steps_per_s_min": min(learn_rates), "learn_steps_per_s_max": max(learn_rates),
+        "minutes_per_2M_steps": 2e6 / statistics.median(learn_rates) / 60.0,
+        "cpus": os.cpu_count(), "torch_threads": rec.torch_threads,
+        "load_average": os.getloadavg()[0],
+    }
+
+
+def main(argv: list[str], prog: str = "wt-inspect bench train") -> int:
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    ap.add_argument("--algo", default="ppo", help=f"algorithm: {', '.join(ALGOS)}")
+    ap.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)}")
+    ap.add_argument("--n-envs", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=20_000, help="simulator steps per repeat")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--recipe", default=None)
+    ap.add_argument("--json", action="store_true", help="print one JSON object")
+    args = ap.parse_args(argv)
+    try:
+        r = run_bench(args.algo, args.task, args.n_envs, args.steps, args.repeats, args.recipe)
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    if args.json:
+        print(json.dumps(r))
+    else:
+        print(f"training throughput, {r['algo']} on {r['task']}, {r['n_envs']} subprocess envs, "
+              f"action repeat {r['action_repeat']} (median of {r['repeats']}, {r['steps_per_repeat']} steps each):")
+        print(f"  vec env alone : {r['vecenv_steps_per_s']:8.0f} env steps/s")
+        print(f"  model.learn   : {r['learn_steps_per_s']:8.0f} env steps/s "
+              f"(min {r['learn_steps_per_s_min']:.0f}, max {r['learn_steps_per_s_max']:.0f}) "
+              f"-> {r['minutes_per_2M_steps']:.1f} min per 2 M steps")
+        print(f"  (cpus {r['cpus']}, load average {r['load_average']:.2f})")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main(sys.argv[1:]))

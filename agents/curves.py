@@ -1,0 +1,76 @@
+"""The learning-curve figure of a training run (from its ``evaluations.json`` and ``episodes.csv``)."""
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+
+
+def _smooth(y: np.ndarray, window: int) -> np.ndarray:
+    if len(y) < 2 or window <= 1:
+        return y
+    window = min(window, len(y))
+    c = np.cumsum(np.insert(y, 0, 0.0))
+    out = np.empty_like(y, dtype=float)
+    for i in range(len(y)):
+        lo = max(0, i - window + 1)
+        out[i] = (c[i + 1] - c[lo]) / (i + 1 - lo)
+    return out
+
+
+def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0.9) -> Path:
+    """Two panels against simulator steps: periodic evaluation (coverage, SM, CM of the
+    deterministic policy on the evaluation mission) and training episodes (return, SM; smoothed
+    over 20 episodes). Returns the written path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    run_dir = Path(run_dir)
+    evals = []
+    ep_file = run_dir / "evaluations.json"
+    if ep_file.is_file():
+        evals = json.loads(ep_file.read_text())
+    rows = []
+    csv_file = run_dir / "episodes.csv"
+    if csv_file.is_file():
+        with open(csv_file, newline="") as fh:
+            rows = list(csv.DictReader(fh))
+    fig, (ax1, ax2) = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
+    if evals:
+        x = np.array([e["env_steps"] for e in evals]) / 1e6
+        for key, label in (("coverage", "coverage"), ("safety_sm", "SM"), ("centering_cm", "CM")):
+            ax1.plot(x, [e["mean"][key] for e in evals], marker="o", ms=3, label=label)
+    ax1.axhline(target, color="k", ls=":", lw=1, label=f"target {target:.0%}")
+    ax1.set_ylabel("evaluation (deterministic)")
+    ax1.set_ylim(-0.05, 1.05)
+    ax1.legend(loc="lower right", fontsize=8)
+    ax1.grid(alpha=0.3)
+    if rows:
+        x = np.array([float(r["env_steps"]) for r in rows]) / 1e6
+        ret = np.array([float(r["return"]) for r in rows])
+        sm = np.array([float(r["safety_sm"]) for r in rows])
+        ax2.plot(x, _smooth(ret, 20), color="C0", label="episode return (smoothed)")
+        ax2.set_ylabel("training episode return")
+        ax2b = ax2.twinx()
+        ax2b.plot(x, _smooth(sm, 20), color="C1", label="episode SM (smoothed)")
+        ax2b.set_ylabel("training episode SM")
+        ax2b.set_ylim(-0.05, 1.05)
+        lines = ax2.get_lines() + ax2b.get_lines()
+        ax2.legend(lines, [ln.get_label() for ln in lines], loc="lower right", fontsize=8)
+    ax2.set_xlabel("simulator steps [millions]")
+    ax2.grid(alpha=0.3)
+    summary_file = run_dir / "summary.json"
+    title = run_dir.name
+    if summary_file.is_file():
+        s = json.loads(summary_file.read_text())
+        title = f"{s['algo'].upper()} on the {s['task']} task: {s['env_steps'] / 1e6:.2f} M steps, " \
+                f"{s['wall_time_s'] / 60:.1f} min"
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+    return path

@@ -1,0 +1,179 @@
+"""Saved stable-baselines3 agents as controllers with the shared ``reset / act / predict`` interface.
+
+A model ``DIR/NAME.zip`` is saved with a sidecar ``DIR/NAME.json`` (:func:`save_agent`) holding
+what the network alone does not know: the :class:`~agents.wrappers.AgentSpec` (features, residual
+action, action repeat), the observation normalisation statistics of training (VecNormalize's
+running mean / variance, clip, epsilon - plain numbers, no pickle needed to deploy) and the
+environment interface it was trained on. ``DIR/NAME.vecnormalize.pkl`` (stable-baselines3's own
+format, with the reward statistics too) is only needed to *resume* training.
+
+:func:`load_sb3_policy` rebuilds the exact training-time pipeline around the network: Dict
+observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> network
+(deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action,
+held for ``action_repeat`` control steps. The evaluation harness resolves ``ppo:PATH`` /
+``sac:PATH`` controller names through it.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from controllers.policy import Policy, check_observation
+from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.validation import check_choice
+
+from .wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction
+
+ALGOS: tuple[str, ...] = ("ppo", "sac")
+SIDECAR_FORMAT = 1
+
+
+def algo_class(algo: str):
+    """The stable-baselines3 class for an algorithm name (ValueError listing the valid ones)."""
+    check_choice("algorithm", algo, ALGOS)
+    from stable_baselines3 import PPO, SAC
+    return {"ppo": PPO, "sac": SAC}[algo]
+
+
+def sidecar_paths(model_path: str | Path) -> tuple[Path, Path, Path]:
+    """``(NAME.zip, NAME.json, NAME.vecnormalize.pkl)`` for a model path given with or without
+    its ``.zip`` suffix."""
+    p = Path(model_path)
+    stem = p.with_suffix("") if p.suffix == ".zip" else p
+    return stem.with_suffix(".zip"), stem.with_suffix(".json"), Path(str(stem) + ".vecnormalize.pkl")
+
+
+def env_interface(env) -> dict[str, float]:
+    """The numbers of an environment the agent's interface depends on."""
+    u = env.unwrapped
+    return {"mass": float(u.scaling.mass), "max_rate": float(u.scaling.max_rate),
+            "standoff": float(u.config.standoff), "dt": float(u.dt)}
+
+
+def save_agent(model, path: str | Path, *, algo: str, spec: AgentSpec, vecnormalize=None,
+               interface: Mapping[str, float], extra: Mapping[str, Any] | None = None) -> Path:
+    """Save ``model`` as ``NAME.zip`` with its ``NAME.json`` sidecar (and ``NAME.vecnormalize.pkl``
+    when a VecNormalize is given). Returns the ``.zip`` path."""
+    zip_path, json_path, pkl_path = sidecar_paths(path)
+    zip_path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(str(zip_path))
+    norm = None
+    if vecnormalize is not None:
+        vecnormalize.save(str(pkl_path))
+        if vecnormalize.norm_obs:
+            norm = {"mean": vecnormalize.obs_rms.mean.tolist(), "var": vecnormalize.obs_rms.var.tolist(),
+                    "clip_obs": float(vecnormalize.clip_obs), "epsilon": float(vecnormalize.epsilon)}
+    doc = {"format": SIDECAR_FORMAT, "algo": algo, "spec": spec.to_dict(), "obs_normalization": norm,
+           "env_interface": dict(interface), **(dict(extra) if extra else {})}
+    write_text_atomic(json_path, json.dumps(doc, indent=1))
+    return zip_path
+
+
+def load_sidecar(path: str | Path) -> dict[str, Any]:
+    """The sidecar document of a saved model (ValueError naming the file if missing or invalid)."""
+    _, json_path, _ = sidecar_paths(path)
+    if not json_path.is_file():
+        raise ValueError(f"model sidecar {str(json_path)!r} not found (saved by agents.policy.save_agent "
+                         "next to the model: it holds the feature spec and normalisation)")
+    try:
+        doc = json.loads(json_path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"model sidecar {str(json_path)!r} is not valid JSON: {exc}") from None
+    if doc.get("format") != SIDECAR_FORMAT:
+        raise ValueError(f"model sidecar {str(json_path)!r} has format {doc.get('format')!r}, "
+                         f"expected {SIDECAR_FORMAT}")
+    return doc
+
+
+class SB3Policy(Policy):
+    """A stable-baselines3 model behind the shared controller interface (see the module docstring).
+
+    ``act`` must see every control step's observation of an episode in order (the encoder
+    integrates the pose error and the action is held between network calls); call :meth:`reset`
+    at each episode start (``predict`` does so on ``episode_start``).
+    """
+
+    def __init__(self, model, spec: AgentSpec, scaling: ActionScaling, *, standoff: float, dt: float,
+                 obs_normalization: Mapping[str, Any] | None = None, algo: str = "ppo") -> None:
+        self.model = model
+        self.algo = algo
+        self.spec = spec
+        self.encoder = FeatureEncoder(spec.features, standoff=standoff, dt=dt, max_rate=scaling.max_rate)
+        self.decoder = ResidualHoverAction(spec.action, scaling)
+        n = spec.features.size
+        if obs_normalization is not None:
+            self._mean = np.asarray(obs_normalization["mean"], dtype=np.float64)
+            self._std = np.sqrt(np.asarray(obs_normalization["var"], dtype=np.float64)
+                                + float(obs_normalization["epsilon"]))
+            self._clip = float(obs_normalization["clip_obs"])
+            if self._mean.shape != (n,) or self._std.shape != (n,):
+                raise ValueError(f"obs_normalization must have {n} entries (the spec's feature size), "
+                                 f"got {self._mean.shape[0]}")
+        else:
+            self._mean = None
+        expected = getattr(model, "observation_space", None)
+        if expected is not None and tuple(expected.shape) != (n,):
+            raise ValueError(f"model expects observations of shape {tuple(expected.shape)}, "
+                             f"the spec gives {n} features")
+        self.reset()
+
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new episode (the network is deterministic; ``seed`` is accepted for the interface)."""
+        self.encoder.reset()
+        self._count = 0
+        self._held: np.ndarray | None = None
+        self.last_stats = None
+
+    def normalize(self, features: np.ndarray) -> np.ndarray:
+        if self._mean is None:
+            return features.astype(np.float32)
+        return np.clip((features - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
+
+    def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        o = check_observation(obs)
+        self.encoder.update(o)
+        if self._count % self.spec.action_repeat == 0 or self._held is None:
+            x = self.normalize(self.encoder.features())
+            u, _ = self.model.predict(x, deterministic=True)
+            u = np.asarray(u, dtype=np.float64).reshape(4)
+            self._held = self.decoder(u, o["quaternion"])
+            self.encoder.note_action(u)
+            self.last_stats = {"policy_action": u}
+        self._count += 1
+        return self._held.copy()
+
+
+def load_sb3_policy(algo: str, path: str | Path, env=None) -> SB3Policy:
+    """Load ``path`` (``NAME.zip`` with its ``NAME.json`` sidecar) as a controller for ``env``.
+
+    The returned object takes the env's raw Dict observation and returns a normalised env action
+    (``reset / act / predict``). The stand-off, control period and airframe come from ``env`` when
+    given (features are relative to *its* ideal pose; hover thrust from *its* mass), else from the
+    sidecar. ValueError if ``algo`` is not one of ``ppo, sac``, the file is missing, or the sidecar
+    says another algorithm.
+    """
+    cls = algo_class(algo)
+    zip_path, _, _ = sidecar_paths(path)
+    if not zip_path.is_file():
+        raise ValueError(f"model file {str(zip_path)!r} not found")
+    doc = load_sidecar(zip_path)
+    if doc.get("algo") != algo:
+        raise ValueError(f"model {str(zip_path)!r} was trained with {doc.get('algo')!r}, not {algo!r}")
+    spec = AgentSpec.from_dict(doc["spec"])
+    if env is not None:
+        iface = env_interface(env)
+        scaling = env.unwrapped.scaling
+    else:
+        iface = doc["env_interface"]
+        scaling = ActionScaling(mass=iface["mass"], max_rate=iface["max_rate"])
+    model = cls.load(str(zip_path), device="cpu")
+    return SB3Policy(model, spec, scaling, standoff=iface["standoff"], dt=iface["dt"],
+                     obs_normalization=doc.get("obs_normalization"), algo=algo)
+
+
+__all__ = ["ALGOS", "SB3Policy", "load_sb3_policy", "save_agent", "load_sidecar", "sidecar_paths",
+           "algo_class", "env_interface"]

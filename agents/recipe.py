@@ -1,0 +1,124 @@
+"""Training recipes: every hyperparameter of a run in one JSON file (``agents/recipes/*.json``).
+
+A recipe names the algorithm, the environment options used for training and for evaluation
+(``gym.make`` keyword options, so reward weights, wind, start noise and episode length are set
+there), the agent interface (:class:`~agents.wrappers.AgentSpec`), observation / reward
+normalisation, the algorithm's keyword arguments and the network. Unknown keys are a ValueError
+listing the valid ones, so a misspelt hyperparameter never silently falls back to a default.
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+from wt_inspect_env.env_config import EnvConfig
+from wt_inspect_env.validation import check_choice, check_positive, check_unknown_options
+
+from .policy import ALGOS
+from .wrappers import AgentSpec
+
+RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
+ACTIVATIONS: tuple[str, ...] = ("tanh", "relu", "elu", "leaky_relu")
+NORMALIZE_KEYS: tuple[str, ...] = ("obs", "reward", "clip_obs", "clip_reward")
+
+
+def _positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return value
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """One training recipe (see the module docstring).
+
+    env: ``gym.make`` options for the training envs (``task`` comes from the command line).
+    eval_env: options overriding ``env`` for the periodic evaluation (e.g. no start noise, the full
+        mission length). agent: :class:`AgentSpec` fields. normalize: VecNormalize switches.
+    algo_kwargs: keyword arguments of the stable-baselines3 algorithm; ``learning_rate_final``
+        (optional) makes the learning rate decay linearly to it. policy_kwargs: ``net_arch``,
+        ``activation_fn`` (a name from ``ACTIVATIONS``) and the algorithm's other policy options.
+    eval_every_env_steps / eval_episodes / checkpoint_every_env_steps: in simulator control steps.
+    torch_threads: intra-op threads of the learner (1 leaves the other core to the env workers).
+    """
+
+    algo: str = "ppo"
+    description: str = ""
+    env: dict = field(default_factory=dict)
+    eval_env: dict = field(default_factory=dict)
+    agent: Any = field(default_factory=AgentSpec)
+    normalize: dict = field(default_factory=lambda: {"obs": True, "reward": True})
+    algo_kwargs: dict = field(default_factory=dict)
+    policy_kwargs: dict = field(default_factory=dict)
+    eval_every_env_steps: int = 100_000
+    eval_episodes: int = 2
+    checkpoint_every_env_steps: int = 200_000
+    torch_threads: int = 1
+
+    def __post_init__(self) -> None:
+        check_choice("algorithm", self.algo, ALGOS)
+        for name in ("env", "eval_env", "normalize", "algo_kwargs", "policy_kwargs"):
+            if not isinstance(getattr(self, name), Mapping):
+                raise ValueError(f"recipe {name} must be a dict, got {getattr(self, name)!r}")
+        for name in ("env", "eval_env"):
+            opts = dict(getattr(self, name))
+            if "task" in opts:
+                raise ValueError(f"recipe {name} must not set 'task' (it comes from --task)")
+            EnvConfig.from_kwargs(**{**dict(self.env), **opts})   # validates names and values
+        agent = self.agent
+        if isinstance(agent, Mapping):
+            agent = AgentSpec.from_dict(agent)
+        if not isinstance(agent, AgentSpec):
+            raise ValueError(f"recipe agent must be an AgentSpec or a dict of its fields, got {agent!r}")
+        object.__setattr__(self, "agent", agent)
+        check_unknown_options("recipe normalize", self.normalize.keys(), NORMALIZE_KEYS)
+        for key in ("clip_obs", "clip_reward"):
+            if key in self.normalize:
+                check_positive(f"recipe normalize {key}", self.normalize[key])
+        act = self.policy_kwargs.get("activation_fn")
+        if act is not None:
+            check_choice("recipe policy_kwargs activation_fn", act, ACTIVATIONS)
+        if "learning_rate_final" in self.algo_kwargs:
+            check_positive("recipe algo_kwargs learning_rate_final", self.algo_kwargs["learning_rate_final"])
+        for name in ("eval_every_env_steps", "eval_episodes", "checkpoint_every_env_steps", "torch_threads"):
+            _positive_int(f"recipe {name}", getattr(self, name))
+
+    @property
+    def spec(self) -> AgentSpec:
+        return self.agent
+
+    def eval_env_options(self) -> dict:
+        return {**dict(self.env), **dict(self.eval_env)}
+
+    def to_dict(self) -> dict[str, Any]:
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
+        d["agent"] = self.agent.to_dict()
+        return json.loads(json.dumps(d))
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Recipe":
+        if not isinstance(data, Mapping):
+            raise ValueError(f"a recipe must be a JSON object, got {type(data).__name__}")
+        check_unknown_options("recipe", data.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**dict(data))
+
+
+def load_recipe(path: str | Path) -> Recipe:
+    """Read a recipe file (ValueError naming the file if it is missing or not valid JSON)."""
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"recipe file {str(p)!r} not found")
+    try:
+        data = json.loads(p.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"recipe file {str(p)!r} is not valid JSON: {exc}") from None
+    return Recipe.from_dict(data)
+
+
+def default_recipe_path(algo: str) -> Path:
+    """``agents/recipes/<algo>_surface.json``: the shipped recipe of an algorithm."""
+    check_choice("algorithm", algo, ALGOS)
+    return RECIPE_DIR / f"{algo}_surface.json"

@@ -1,0 +1,53 @@
+"""``wt-inspect train``: train (or resume) a stable-baselines3 agent on an inspection task."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from wt_inspect_env.env_config import TASKS
+
+from .policy import ALGOS
+
+
+def build_parser(prog: str) -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog=prog, description="Train a stable-baselines3 agent on a wind-turbine inspection task. Steps are "
+        "simulator control steps (100 Hz); outputs (model, checkpoints, evaluations, TensorBoard logs, "
+        "learning curve, summary.json) go to --out.")
+    p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}")
+    p.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)} (default surface)")
+    p.add_argument("--timesteps", type=int, required=True, help="simulator steps to train in this run")
+    p.add_argument("--n-envs", type=int, default=2, help="parallel environments (subprocesses if > 1)")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--recipe", default=None,
+                   help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
+    p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this wall time")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--verbose", type=int, default=0, help="stable-baselines3 verbosity (0, 1, 2)")
+    return p
+
+
+def main(argv: list[str], prog: str = "wt-inspect train") -> int:
+    args = build_parser(prog).parse_args(argv)
+    from .training import train   # imports torch only once the arguments are valid
+    try:
+        summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
+                        resume=args.resume, seed=args.seed, max_minutes=args.max_minutes,
+                        progress_bar=not args.no_progress, verbose=args.verbose)
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    m = summary["final_evaluation"]["mean"]
+    print(f"trained {summary['env_steps_this_call']} steps in {summary['train_wall_time_this_call_s']:.0f} s "
+          f"({summary['env_steps_per_s']:.0f} steps/s); total {summary['env_steps']} steps, "
+          f"{summary['wall_time_s'] / 60:.1f} min")
+    print(f"final evaluation: coverage {m['coverage']:.3f}, SM {m['safety_sm']:.3f}, CM {m['centering_cm']:.3f}")
+    print(json.dumps({"model": summary["final_model"], "summary": str(args.out) + "/summary.json"}))
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main(sys.argv[1:]))

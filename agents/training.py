@@ -1,0 +1,428 @@
+"""Training stable-baselines3 agents on the inspection tasks (the library behind ``wt-inspect train``).
+
+A run writes into its output directory::
+
+    model.zip / model.json / model.vecnormalize.pkl   final agent (+ sidecar, + resume statistics)
+    best_model.*                                      agent with the best periodic evaluation
+    checkpoints/ckpt_<env steps>.*                    resumable checkpoints
+    evaluations.json                                  periodic evaluations (shared metrics)
+    episodes.csv                                      every training episode's return and metrics
+    learning_curve.png                                coverage / SM / return against env steps
+    summary.json                                      steps, wall time, throughput, final metrics
+    recipe.json                                       the recipe used
+    tb/                                               TensorBoard logs
+
+Steps are counted in *simulator control steps* (100 Hz env steps), the unit of the issue's
+"2 M steps" budget: with ``action_repeat = k`` the agent takes one decision per ``k`` of them, and
+``--timesteps N`` trains for ``ceil(N / k)`` decisions (summed over the parallel envs).
+
+Evaluation runs the deployed path, :class:`~agents.policy.SB3Policy` on a raw env (Dict
+observation in, env action out), on the recipe's ``eval_env`` options (by default the full mission
+with the paper's gust and no start noise), and reads coverage, safety SM and centering CM from the
+env's ``info["metrics"]``. The best model is the one whose mean ``min(coverage, SM)`` is highest.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import gymnasium as gym
+import numpy as np
+
+import wt_inspect_env
+from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.env_config import TASKS
+from wt_inspect_env.validation import check_choice
+
+from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
+from .recipe import Recipe, default_recipe_path, load_recipe
+from .wrappers import AgentSpec, InspectionAgentEnv
+
+TASK_ENV_IDS: dict[str, str] = {task: env_id for env_id, task in wt_inspect_env.ENV_IDS.items()}
+METRIC_KEYS: tuple[str, ...] = ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m",
+                                "collisions", "flight_time_s")
+EVAL_SEED_BASE = 10_000
+
+
+def make_raw_env(task: str, options: Mapping[str, Any]) -> gym.Env:
+    """The registered inspection env of ``task`` with ``gym.make`` options."""
+    check_choice("task", task, TASKS)
+    return gym.make(TASK_ENV_IDS[task], **dict(options))
+
+
+def make_agent_env(task: str, options: Mapping[str, Any], spec: AgentSpec) -> gym.Env:
+    """Raw env -> :class:`InspectionAgentEnv` -> stable-baselines3 ``Monitor`` (episode stats)."""
+    from stable_baselines3.common.monitor import Monitor
+    return Monitor(InspectionAgentEnv(make_raw_env(task, options), spec))
+
+
+def _env_factory(task: str, options: Mapping[str, Any], spec: AgentSpec) -> Callable[[], gym.Env]:
+    opts = dict(options)
+    return lambda: make_agent_env(task, opts, spec)
+
+
+def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs: int,
+                 subprocess: bool | None = None):
+    """``n_envs`` agent envs, in subprocesses unless ``n_envs == 1`` (or ``subprocess=False``)."""
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+    fns = [_env_factory(task, options, spec) for _ in range(n_envs)]
+    use_sub = n_envs > 1 if subprocess is None else subprocess
+    return SubprocVecEnv(fns, start_method="forkserver") if use_sub else DummyVecEnv(fns)
+
+
+def run_episode(policy, env: gym.Env, seed: int) -> dict[str, Any]:
+    """One episode of a ``reset/act`` policy on a raw env; the env's final metrics and the return."""
+    obs, info = env.reset(seed=seed)
+    policy.reset(seed)
+    total, steps = 0.0, 0
+    while True:
+        obs, reward, terminated, truncated, info = env.step(policy.act(obs))
+        total += reward
+        steps += 1
+        if terminated or truncated:
+            break
+    m = info["metrics"]
+    out = {k: float(m[k]) for k in METRIC_KEYS}
+    out.update(seed=seed, steps=steps, episode_return=total, termination=info["termination"],
+               mission_complete=bool(info["mission_complete"]))
+    return out
+
+
+def evaluate_policy(policy, task: str, options: Mapping[str, Any], seeds: Sequence[int]) -> dict[str, Any]:
+    """Episodes of ``policy`` on ``task`` (one seed each) and their means."""
+    env = make_raw_env(task, options)
+    try:
+        episodes = [run_episode(policy, env, int(s)) for s in seeds]
+    finally:
+        env.close()
+    return summarize_episodes(episodes)
+
+
+def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    mean = {k: float(np.mean([e[k] for e in episodes])) for k in (*METRIC_KEYS, "episode_return", "steps")}
+    score = float(np.mean([min(e["coverage"], e["safety_sm"]) for e in episodes]))
+    return {"mean": mean, "score": score, "episodes": episodes}
+
+
+def _policy_from_model(model, spec: AgentSpec, vecnormalize, env_like) -> SB3Policy:
+    norm = None
+    if vecnormalize is not None and vecnormalize.norm_obs:
+        norm = {"mean": vecnormalize.obs_rms.mean.copy(), "var": vecnormalize.obs_rms.var.copy(),
+                "clip_obs": vecnormalize.clip_obs, "epsilon": vecnormalize.epsilon}
+    iface = env_interface(env_like)
+    return SB3Policy(model, spec, env_like.unwrapped.scaling, standoff=iface["standoff"], dt=iface["dt"],
+                     obs_normalization=norm)
+
+
+def _callback_class():
+    """Defined lazily so that importing this module does not import torch."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class InspectionCallback(BaseCallback):
+        """Env-step accounting, training-episode metrics, periodic evaluation, checkpoints, best
+        model, a wall-clock limit and a tqdm progress bar, all in env (control) steps."""
+
+        def __init__(self, run: "TrainingRun") -> None:
+            super().__init__(verbose=0)
+            self.run = run
+            self.stopped_by_clock = False
+            self._bar = None
+
+        def _on_training_start(self) -> None:
+            r = self.run
+            if r.progress_bar:
+                from tqdm import tqdm
+                self._bar = tqdm(total=r.target_env_steps, initial=r.env_steps, unit="step",
+                                 unit_scale=True, mininterval=2.0, dynamic_ncols=True, file=sys.stderr,
+                                 desc=f"{r.algo} {r.task}")
+
+        def _on_step(self) -> bool:
+            r = self.run
+            infos = self.locals["infos"]
+            dones = self.locals["dones"]
+            n = int(sum(info.get("env_steps", r.spec.action_repeat) for info in infos))
+            r.env_steps += n
+            if self._bar is not None:
+                self._bar.update(n)
+            for done, info in zip(dones, infos):
+                if done and "metrics" in info:
+                    r.record_episode(info, self.logger)
+            if r.env_steps >= r.next_eval:
+                r.next_eval += r.recipe.eval_every_env_steps
+                r.evaluate(self.model, self.logger)
+            if r.env_steps >= r.next_checkpoint:
+                r.next_checkpoint += r.recipe.checkpoint_every_env_steps
+                r.checkpoint(self.model)
+            if r.max_seconds is not None and r.elapsed() >= r.max_seconds:
+                self.stopped_by_clock = True
+                return False
+            return True
+
+        def _on_training_end(self) -> None:
+            if self._bar is not None:
+                self._bar.close()
+
+    return InspectionCallback
+
+
+class TrainingRun:
+    """State of one ``train`` call (kept out of globals; see :func:`train`)."""
+
+    def __init__(self, *, algo: str, task: str, recipe: Recipe, out: Path, n_envs: int, seed: int,
+                 target_env_steps: int, env_steps: int, wall_before: float, max_seconds: float | None,
+                 progress_bar: bool, vecnormalize) -> None:
+        self.algo, self.task, self.recipe, self.out = algo, task, recipe, out
+        self.spec = recipe.spec
+        self.n_envs, self.seed = n_envs, seed
+        self.env_steps = env_steps
+        self.start_env_steps = env_steps
+        self.target_env_steps = target_env_steps
+        self.wall_before = wall_before
+        self.t0 = time.perf_counter()
+        self.max_seconds = max_seconds
+        self.progress_bar = progress_bar
+        self.vecnormalize = vecnormalize
+        every = recipe.eval_every_env_steps
+        self.next_eval = (env_steps // every + 1) * every
+        cevery = recipe.checkpoint_every_env_steps
+        self.next_checkpoint = (env_steps // cevery + 1) * cevery
+        self.evaluations: list[dict[str, Any]] = _read_json_list(out / "evaluations.json")
+        self.best_score = max((e["score"] for e in self.evaluations), default=-math.inf)
+        self.eval_time = 0.0
+        self._eval_env = None
+        self._episodes_path = out / "episodes.csv"
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def wall_time(self) -> float:
+        return self.wall_before + self.elapsed()
+
+    def interface_env(self) -> gym.Env:
+        if self._eval_env is None:
+            self._eval_env = make_raw_env(self.task, self.recipe.eval_env_options())
+        return self._eval_env
+
+    def record_episode(self, info: Mapping[str, Any], logger) -> None:
+        m = info["metrics"]
+        row = {"env_steps": self.env_steps, "wall_time_s": round(self.wall_time(), 2),
+               "return": float(info["episode"]["r"]) if "episode" in info else float("nan"),
+               "time_s": float(info.get("time", float("nan"))),
+               **{k: float(m[k]) for k in ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m")},
+               "termination": info.get("termination") or ("complete" if info.get("mission_complete") else "time")}
+        new = not self._episodes_path.exists()
+        with open(self._episodes_path, "a", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(row))
+            if new:
+                w.writeheader()
+            w.writerow(row)
+        for k in ("coverage", "safety_sm", "centering_cm"):
+            logger.record_mean(f"episode/{k}", row[k])
+        logger.record_mean("episode/crashed", float(info.get("termination") is not None))
+        logger.record("time/env_steps", self.env_steps)
+
+    def evaluate(self, model, logger=None) -> dict[str, Any]:
+        t = time.perf_counter()
+        env = self.interface_env()
+        policy = _policy_from_model(model, self.spec, self.vecnormalize, env)
+        seeds = [EVAL_SEED_BASE + i for i in range(self.recipe.eval_episodes)]
+        result = summarize_episodes([run_episode(policy, env, s) for s in seeds])
+        dt = time.perf_counter() - t
+        self.eval_time += dt
+        entry = {"env_steps": self.env_steps, "wall_time_s": round(self.wall_time(), 2),
+                 "eval_time_s": round(dt, 2), **result}
+        self.evaluations.append(entry)
+        write_text_atomic(self.out / "evaluations.json", json.dumps(self.evaluations, indent=1))
+        if logger is not None:
+            for k, v in result["mean"].items():
+                logger.record(f"eval/{k}", v)
+            logger.record("eval/score", result["score"])
+        mean = result["mean"]
+        print(f"[eval] env_steps={self.env_steps} wall={self.wall_time():.0f}s coverage={mean['coverage']:.3f} "
+              f"SM={mean['safety_sm']:.3f} CM={mean['centering_cm']:.3f} return={mean['episode_return']:.1f} "
+              f"steps={mean['steps']:.0f}", file=sys.stderr, flush=True)
+        if result["score"] > self.best_score:
+            self.best_score = result["score"]
+            self.save(model, self.out / "best_model", evaluation=entry)
+        return entry
+
+    def training_info(self) -> dict[str, Any]:
+        return {"algo": self.algo, "task": self.task, "env_steps": self.env_steps,
+                "wall_time_s": round(self.wall_time(), 1), "n_envs": self.n_envs, "seed": self.seed}
+
+    def save(self, model, path: Path, evaluation: Mapping[str, Any] | None = None) -> Path:
+        extra = {"training": self.training_info(), "recipe": self.recipe.to_dict()}
+        if evaluation is not None:
+            extra["evaluation"] = evaluation
+        return save_agent(model, path, algo=self.algo, spec=self.spec, vecnormalize=self.vecnormalize,
+                          interface=env_interface(self.interface_env()), extra=extra)
+
+    def checkpoint(self, model) -> Path:
+        return self.save(model, self.out / "checkpoints" / f"ckpt_{self.env_steps}")
+
+    def close(self) -> None:
+        if self._eval_env is not None:
+            self._eval_env.close()
+            self._eval_env = None
+
+
+def _read_json_list(path: Path) -> list:
+    if path.is_file():
+        try:
+            data = json.loads(path.read_text())
+            return data if isinstance(data, list) else []
+        except json.JSONDecodeError:
+            return []
+    return []
+
+
+def _algo_kwargs(recipe: Recipe) -> dict[str, Any]:
+    from stable_baselines3.common.utils import LinearSchedule
+    kw = dict(recipe.algo_kwargs)
+    final = kw.pop("learning_rate_final", None)
+    if final is not None:
+        lr0 = float(kw.get("learning_rate", 3e-4))
+        kw["learning_rate"] = LinearSchedule(lr0, float(final), 1.0)
+    return kw
+
+
+def _policy_kwargs(recipe: Recipe) -> dict[str, Any]:
+    import torch.nn as nn
+    kw = dict(recipe.policy_kwargs)
+    act = kw.get("activation_fn")
+    if act is not None:
+        kw["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[act]
+    return kw
+
+
+def _positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
+          recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
+          max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
+          subprocess: bool | None = None) -> dict[str, Any]:
+    """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
+
+    ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
+    :class:`Recipe`, or None for ``agents/recipes/<algo>_surface.json`` (or, when resuming, the
+    checkpoint's recipe). ``resume``: a checkpoint/model ``.zip`` saved by a run (its sidecar and
+    VecNormalize statistics are read from beside it). ``max_minutes``: stop early (and save) once
+    this much wall time has passed in this call.
+    """
+    check_choice("algorithm", algo, ALGOS)
+    check_choice("task", task, TASKS)
+    timesteps = _positive_int("timesteps", timesteps)
+    n_envs = _positive_int("n_envs", n_envs)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if max_minutes is not None and not (isinstance(max_minutes, (int, float)) and max_minutes > 0):
+        raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
+    ckpt_doc = None
+    if resume is not None:
+        zip_path, _, pkl_path = sidecar_paths(resume)
+        if not zip_path.is_file():
+            raise ValueError(f"resume checkpoint {str(zip_path)!r} not found")
+        ckpt_doc = load_sidecar(zip_path)
+        if ckpt_doc.get("algo") != algo:
+            raise ValueError(f"resume checkpoint {str(zip_path)!r} was trained with {ckpt_doc.get('algo')!r}, "
+                             f"not {algo!r}")
+        if not pkl_path.is_file() and ckpt_doc.get("obs_normalization") is not None:
+            raise ValueError(f"resume needs the normalisation statistics {str(pkl_path)!r}")
+    if isinstance(recipe, Recipe):
+        rec = recipe
+    elif recipe is not None:
+        rec = load_recipe(recipe)
+    elif ckpt_doc is not None:
+        rec = Recipe.from_dict(ckpt_doc["recipe"])
+    else:
+        rec = load_recipe(default_recipe_path(algo))
+    if rec.algo != algo:
+        raise ValueError(f"recipe is for algorithm {rec.algo!r}, not {algo!r}")
+    if ckpt_doc is not None and AgentSpec.from_dict(ckpt_doc["spec"]) != rec.spec:
+        raise ValueError("the recipe's agent spec differs from the checkpoint's (features/action/repeat "
+                         "must stay the same to resume)")
+
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    torch.set_num_threads(rec.torch_threads)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
+    cls = algo_class(algo)
+    venv = make_vec_env(task, rec.env, rec.spec, n_envs, subprocess=subprocess)
+    norm = dict(rec.normalize)
+    use_norm = bool(norm.get("obs", True) or norm.get("reward", True))
+    gamma = float(rec.algo_kwargs.get("gamma", 0.99))
+    vecnorm = None
+    if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
+        vecnorm = VecNormalize.load(str(sidecar_paths(resume)[2]), venv)
+        vecnorm.training = True
+        venv = vecnorm
+    elif use_norm:
+        vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
+                               clip_obs=float(norm.get("clip_obs", 10.0)),
+                               clip_reward=float(norm.get("clip_reward", 10.0)), gamma=gamma)
+        venv = vecnorm
+    tb = str(out / "tb")
+    if ckpt_doc is not None:
+        model = cls.load(str(sidecar_paths(resume)[0]), env=venv, device="cpu", tensorboard_log=tb)
+        env_steps0 = int(ckpt_doc.get("training", {}).get("env_steps", 0))
+        wall0 = float(ckpt_doc.get("training", {}).get("wall_time_s", 0.0))
+    else:
+        model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
+                    policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
+        env_steps0, wall0 = 0, 0.0
+    run = TrainingRun(algo=algo, task=task, recipe=rec, out=out, n_envs=n_envs, seed=seed,
+                      target_env_steps=env_steps0 + timesteps, env_steps=env_steps0, wall_before=wall0,
+                      max_seconds=None if max_minutes is None else 60.0 * max_minutes,
+                      progress_bar=progress_bar, vecnormalize=vecnorm)
+    callback = _callback_class()(run)
+    agent_steps = math.ceil(timesteps / rec.spec.action_repeat)
+    try:
+        model.learn(total_timesteps=agent_steps, callback=callback, reset_num_timesteps=ckpt_doc is None,
+                    tb_log_name=algo, progress_bar=False)
+        train_seconds = run.elapsed()
+        eval_seconds = run.eval_time
+        final_eval = run.evaluate(model)
+        final_path = run.save(model, out / "model", evaluation=final_eval)
+    finally:
+        venv.close()
+        run.close()
+    best_eval = max(run.evaluations, key=lambda e: e["score"]) if run.evaluations else None
+    steps_this_call = run.env_steps - run.start_env_steps
+    summary = {
+        **run.training_info(),
+        "env_steps_this_call": steps_this_call,
+        "agent_decisions": int(model.num_timesteps),
+        "action_repeat": rec.spec.action_repeat,
+        "train_wall_time_this_call_s": round(train_seconds, 1),
+        "eval_time_this_call_s": round(run.eval_time, 1),
+        "env_steps_per_s": round(steps_this_call / max(train_seconds - eval_seconds, 1e-9), 1),
+        "stopped_by_wall_clock": callback.stopped_by_clock,
+        "resumed_from": None if resume is None else str(resume),
+        "final_model": str(final_path),
+        "final_evaluation": {"mean": final_eval["mean"], "score": final_eval["score"]},
+        "best_evaluation": None if best_eval is None else {"env_steps": best_eval["env_steps"],
+                                                           "mean": best_eval["mean"], "score": best_eval["score"]},
+        "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
+                    "torch": torch.__version__, "torch_threads": rec.torch_threads},
+    }
+    write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
+    try:
+        from .curves import plot_learning_curve
+        plot_learning_curve(out, out / "learning_curve.png")
+    except Exception as exc:  # a figure must never lose a finished run
+        print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
+    return summary

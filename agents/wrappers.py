@@ -1,0 +1,351 @@
+"""What an RL agent sees and commands: relative body-frame features and residual-to-hover actions.
+
+Why these wrappers exist
+------------------------
+The environment's Dict observation is in world coordinates (positions ~100 m, a quaternion) and
+its action maps ``a = 0`` to 1.15 m g of thrust, not to hover. A network can in principle learn
+the change of frame, but with a 2 M step budget every transform it has to learn costs samples. So
+an agent here sees the quantities a flight-control engineer would feed a tracking controller, in
+the body frame where the rate/thrust command acts, scaled to O(1):
+
+==================  ====  =========================================================================
+group               size  feature
+==================  ====  =========================================================================
+``ideal_body``      3     ``R^T (q - x) / position_scale``: drone to the ideal stand-off pose
+                          ``q = p + d_ref n_xy/|n_xy|`` (the env's definition) - zero at the pose
+``point_body``      3     ``R^T (p - x) / d_ref``: drone to the inspection point (camera aim)
+``velocity_body``   3     ``(v_body - R^T v_point) / velocity_scale``: velocity relative to the point
+``gravity_body``    3     ``R^T (0, 0, -1)``: attitude as the gravity direction (no quaternion sign
+                          ambiguity, no yaw, which the task does not care about)
+``heading``         2     ``(sin, cos)`` of the horizontal angle from the body x axis (camera) to the
+                          point: (0, 1) when centred (the paper's h is its cosine)
+``body_rates``      3     measured body rates / max command rate
+``normal_body``     3     ``R^T n``: the surface normal in the body frame
+``integral``        3     ``R^T I / (integral_time_s position_scale)`` with ``I`` a leaky integral
+                          (time constant ``integral_time_s``) of the world-frame pose error: lets a
+                          memoryless network learn integral action against the mean wind (the wind
+                          is not observed, as on a real drone)
+``last_action``     4     the policy's previous action (smoothness; the held command is part of the
+                          state when actions are repeated)
+``progress``        1     mission progress in [0, 1]
+``coverage``        1     coverage so far in [0, 1]
+==================  ====  =========================================================================
+
+Every feature is clipped to ``[-clip, clip]`` (large errors saturate instead of dominating).
+
+Action (:class:`ResidualHoverAction`): the policy's ``u in [-1, 1]^4`` is a *residual around hover*:
+body rates ``rate_scale * max_rate * u[:3]`` and thrust ``m g (1 + thrust_scale u[3])``, divided by
+the cosine of the tilt when ``tilt_compensation`` is on (so a tilted drone keeps its altitude at
+``u = 0``; the factor is capped at ``max_tilt_factor``). So ``u = 0`` hovers from the first update on,
+and exploration noise is centred on flying rather than on climbing. The command is converted to
+the env's normalised action with :meth:`ActionScaling.to_action`, which saturates it at the
+airframe's thrust bounds (0.3-2 m g) - a physical limit, reachable only with tilt compensation.
+
+``action_repeat`` holds each policy action for that many 100 Hz control steps (the agent decides
+at 25 Hz with the default 4): fewer, more consequential decisions make credit assignment easier,
+and the network and inter-process costs per simulated step drop by the same factor. The
+environment is still stepped, observed and scored at its own rate.
+
+The same :class:`FeatureEncoder` / :class:`ResidualHoverAction` objects are used by the training
+wrapper (:class:`InspectionAgentEnv`) and by the deployed policy (:mod:`agents.policy`), so the
+features a saved model sees at evaluation are computed by the very code it was trained with.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from wt_inspect_env.dynamics import quat_to_rotmat_np
+from wt_inspect_env.quadrotor import GRAVITY
+from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.validation import check_array, check_choice, check_positive, check_unknown_options
+
+FEATURE_SIZES: dict[str, int] = {
+    "ideal_body": 3, "point_body": 3, "velocity_body": 3, "gravity_body": 3, "heading": 2,
+    "body_rates": 3, "normal_body": 3, "integral": 3, "last_action": 4, "progress": 1, "coverage": 1,
+}
+DEFAULT_GROUPS: tuple[str, ...] = (
+    "ideal_body", "point_body", "velocity_body", "gravity_body", "heading", "body_rates",
+    "normal_body", "integral", "last_action",
+)
+
+
+@dataclass(frozen=True)
+class FeatureConfig:
+    """Which feature groups (in this order) and how they are scaled (see the module docstring).
+
+    position_scale [m], velocity_scale [m/s]: errors of this size map to 1. integral_time_s [s]:
+    time constant of the leaky error integral (the feature saturates at ``clip``, which is also
+    the integrator's anti-windup bound).
+    """
+
+    groups: tuple[str, ...] = DEFAULT_GROUPS
+    position_scale: float = 2.0
+    velocity_scale: float = 2.0
+    integral_time_s: float = 5.0
+    clip: float = 5.0
+
+    def __post_init__(self) -> None:
+        groups = tuple(self.groups)
+        if not groups:
+            raise ValueError("feature groups must not be empty")
+        for g in groups:
+            check_choice("feature group", g, FEATURE_SIZES)
+        if len(set(groups)) != len(groups):
+            raise ValueError(f"feature groups must not repeat, got {list(groups)}")
+        object.__setattr__(self, "groups", groups)
+        check_positive("feature position_scale", self.position_scale)
+        check_positive("feature velocity_scale", self.velocity_scale)
+        check_positive("feature integral_time_s", self.integral_time_s)
+        check_positive("feature clip", self.clip)
+
+    @property
+    def size(self) -> int:
+        return sum(FEATURE_SIZES[g] for g in self.groups)
+
+    def names(self) -> list[str]:
+        """One name per feature entry, e.g. ``ideal_body[0]`` (for logs and tests)."""
+        return [f"{g}[{i}]" for g in self.groups for i in range(FEATURE_SIZES[g])]
+
+
+@dataclass(frozen=True)
+class ActionConfig:
+    """Residual-to-hover action mapping (see the module docstring)."""
+
+    rate_scale: float = 1.0
+    thrust_scale: float = 0.5
+    tilt_compensation: bool = True
+    max_tilt_factor: float = 1.5
+
+    def __post_init__(self) -> None:
+        if not 0.0 < float(self.rate_scale) <= 1.0:
+            raise ValueError(f"action rate_scale must lie in (0, 1], got {self.rate_scale!r}")
+        if not 0.0 < float(self.thrust_scale) <= 0.7:
+            # 1 - 0.7 = 0.3: the lowest residual thrust is the airframe's lower bound
+            raise ValueError(f"action thrust_scale must lie in (0, 0.7], got {self.thrust_scale!r}")
+        if not isinstance(self.tilt_compensation, bool):
+            raise ValueError(f"action tilt_compensation must be a bool, got {self.tilt_compensation!r}")
+        if not float(self.max_tilt_factor) >= 1.0:
+            raise ValueError(f"action max_tilt_factor must be >= 1, got {self.max_tilt_factor!r}")
+
+
+@dataclass(frozen=True)
+class AgentSpec:
+    """Everything besides the network that defines how an agent talks to the environment; saved
+    next to every model so that :func:`agents.policy.load_sb3_policy` rebuilds the same interface."""
+
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    action: ActionConfig = field(default_factory=ActionConfig)
+    action_repeat: int = 4
+
+    def __post_init__(self) -> None:
+        if isinstance(self.features, Mapping):
+            check_unknown_options("features", self.features.keys(),
+                                  [f.name for f in dataclasses.fields(FeatureConfig)])
+            object.__setattr__(self, "features", FeatureConfig(**dict(self.features)))
+        if isinstance(self.action, Mapping):
+            check_unknown_options("action", self.action.keys(),
+                                  [f.name for f in dataclasses.fields(ActionConfig)])
+            object.__setattr__(self, "action", ActionConfig(**dict(self.action)))
+        if not isinstance(self.features, FeatureConfig) or not isinstance(self.action, ActionConfig):
+            raise ValueError("features / action must be FeatureConfig / ActionConfig or dicts of their fields")
+        r = self.action_repeat
+        if isinstance(r, bool) or not isinstance(r, int) or r < 1:
+            raise ValueError(f"action_repeat must be a positive integer, got {r!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["features"]["groups"] = list(self.features.groups)
+        return d
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "AgentSpec":
+        check_unknown_options("agent spec", data.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**dict(data))
+
+
+def _horizontal_direction(normal: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
+    """``n_xy / |n_xy|`` as the environment's reference defines the stand-off direction; for a
+    (nearly) vertical normal, the previous direction (or +x) - the env does the same along its path."""
+    nx, ny = float(normal[0]), float(normal[1])
+    norm = math.hypot(nx, ny)
+    if norm > 1e-6:
+        return np.array([nx / norm, ny / norm, 0.0])
+    return previous.copy() if previous is not None else np.array([1.0, 0.0, 0.0])
+
+
+class FeatureEncoder:
+    """Turns the env's Dict observations into the feature vector (stateful: error integral, last
+    action). Call :meth:`reset` at an episode start, :meth:`update` on *every* observation (each
+    100 Hz step, also while an action is held) and :meth:`note_action` with each new policy action.
+    """
+
+    def __init__(self, config: FeatureConfig, *, standoff: float, dt: float, max_rate: float) -> None:
+        if not isinstance(config, FeatureConfig):
+            raise ValueError(f"config must be a FeatureConfig, got {type(config).__name__}")
+        self.config = config
+        self.standoff = check_positive("standoff", standoff)
+        self.dt = check_positive("dt", dt)
+        self.max_rate = check_positive("max_rate", max_rate)
+        self._decay = math.exp(-self.dt / config.integral_time_s)
+        self._integral_limit = config.clip * config.integral_time_s * config.position_scale
+        self.reset()
+
+    def reset(self) -> None:
+        self._integral = np.zeros(3)
+        self._last_action = np.zeros(4)
+        self._hdir: np.ndarray | None = None
+        self._features: np.ndarray | None = None
+
+    def note_action(self, action: np.ndarray) -> None:
+        """Remember the policy action now being applied (the ``last_action`` feature)."""
+        self._last_action = np.asarray(action, dtype=np.float64).copy()
+        self._features = None
+
+    def ideal_position(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The stand-off pose for this observation (updates the remembered horizontal direction)."""
+        self._hdir = _horizontal_direction(np.asarray(obs["normal"], dtype=np.float64), self._hdir)
+        return np.asarray(obs["point"], dtype=np.float64) + self.standoff * self._hdir
+
+    def update(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Consume one observation; returns the feature vector (float32)."""
+        x = np.asarray(obs["position"], dtype=np.float64)
+        R = quat_to_rotmat_np(np.asarray(obs["quaternion"], dtype=np.float64))
+        ideal = self.ideal_position(obs)
+        err = ideal - x
+        self._integral = self._integral * self._decay + self.dt * err
+        n = float(np.linalg.norm(self._integral))
+        if n > self._integral_limit:
+            self._integral *= self._integral_limit / n
+        self._obs = obs
+        self._R = R
+        self._err = err
+        self._features = None
+        return self.features()
+
+    def features(self) -> np.ndarray:
+        """The feature vector of the last :meth:`update` (and last :meth:`note_action`)."""
+        if self._features is not None:
+            return self._features
+        cfg, obs, R = self.config, self._obs, self._R
+        Rt = R.T
+        x = np.asarray(obs["position"], dtype=np.float64)
+        point = np.asarray(obs["point"], dtype=np.float64)
+        parts: list[np.ndarray] = []
+        for g in cfg.groups:
+            if g == "ideal_body":
+                parts.append(Rt @ self._err / cfg.position_scale)
+            elif g == "point_body":
+                parts.append(Rt @ (point - x) / self.standoff)
+            elif g == "velocity_body":
+                v_rel = np.asarray(obs["velocity_body"], dtype=np.float64) - Rt @ np.asarray(
+                    obs["point_velocity"], dtype=np.float64)
+                parts.append(v_rel / cfg.velocity_scale)
+            elif g == "gravity_body":
+                parts.append(-R[2, :])
+            elif g == "heading":
+                fx, fy = R[0, 0], R[1, 0]
+                ax, ay = point[0] - x[0], point[1] - x[1]
+                nf, na = math.hypot(fx, fy), math.hypot(ax, ay)
+                if nf < 1e-9 or na < 1e-9:
+                    parts.append(np.array([0.0, 1.0]))
+                else:
+                    parts.append(np.array([(fx * ay - fy * ax) / (nf * na), (fx * ax + fy * ay) / (nf * na)]))
+            elif g == "body_rates":
+                parts.append(np.asarray(obs["body_rates"], dtype=np.float64) / self.max_rate)
+            elif g == "normal_body":
+                parts.append(Rt @ np.asarray(obs["normal"], dtype=np.float64))
+            elif g == "integral":
+                parts.append(Rt @ self._integral / (cfg.integral_time_s * cfg.position_scale))
+            elif g == "last_action":
+                parts.append(self._last_action)
+            elif g == "progress":
+                parts.append(np.asarray(obs["progress"], dtype=np.float64).reshape(1))
+            elif g == "coverage":
+                parts.append(np.asarray(obs["coverage"], dtype=np.float64).reshape(1))
+        f = np.clip(np.concatenate(parts), -cfg.clip, cfg.clip).astype(np.float32)
+        self._features = f
+        return f
+
+
+class ResidualHoverAction:
+    """Policy action ``u in [-1, 1]^4`` -> the env's normalised action (see the module docstring)."""
+
+    def __init__(self, config: ActionConfig, scaling: ActionScaling) -> None:
+        if not isinstance(config, ActionConfig):
+            raise ValueError(f"config must be an ActionConfig, got {type(config).__name__}")
+        self.config = config
+        self.scaling = scaling
+        self.hover_thrust = scaling.mass * GRAVITY
+
+    def command(self, u: Any, quaternion: Any) -> np.ndarray:
+        """The physical command ``[p, q, r, T]`` (before saturation at the airframe's bounds)."""
+        u = check_array("policy action", u, (4,))
+        if np.any(np.abs(u) > 1.0 + 1e-6):
+            raise ValueError(f"policy action must lie in [-1, 1]^4, got {np.array2string(u)}")
+        cfg = self.config
+        rates = cfg.rate_scale * self.scaling.max_rate * u[:3]
+        thrust = self.hover_thrust * (1.0 + cfg.thrust_scale * u[3])
+        if cfg.tilt_compensation:
+            R = quat_to_rotmat_np(check_array("quaternion", quaternion, (4,)))
+            c = R[2, 2]    # cos(tilt): body z . world z
+            thrust *= cfg.max_tilt_factor if c * cfg.max_tilt_factor <= 1.0 else 1.0 / c
+        return np.concatenate([rates, [thrust]])
+
+    def __call__(self, u: Any, quaternion: Any) -> np.ndarray:
+        """The env's normalised action (float32) for policy action ``u`` at attitude ``quaternion``."""
+        return self.scaling.to_action(self.command(u, quaternion))
+
+
+def encoder_for(env: gym.Env, spec: AgentSpec) -> FeatureEncoder:
+    """A :class:`FeatureEncoder` with the env's stand-off, control period and rate bound."""
+    u = env.unwrapped
+    return FeatureEncoder(spec.features, standoff=u.config.standoff, dt=u.dt, max_rate=u.scaling.max_rate)
+
+
+class InspectionAgentEnv(gym.Wrapper):
+    """Training view of an inspection env: Box features in, residual-hover actions out, each held
+    for ``action_repeat`` control steps (rewards summed over them; the episode ends on the first
+    ``terminated``/``truncated`` step). ``info`` is the last control step's, plus ``env_steps``
+    (control steps this agent step took)."""
+
+    def __init__(self, env: gym.Env, spec: AgentSpec | None = None) -> None:
+        super().__init__(env)
+        self.spec_ = spec = spec if spec is not None else AgentSpec()
+        if not isinstance(spec, AgentSpec):
+            raise ValueError(f"spec must be an AgentSpec, got {type(spec).__name__}")
+        self.encoder = encoder_for(env, spec)
+        self.decoder = ResidualHoverAction(spec.action, env.unwrapped.scaling)
+        c = spec.features.clip
+        self.observation_space = spaces.Box(-c, c, shape=(spec.features.size,), dtype=np.float32)
+        self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
+        self._raw: dict[str, np.ndarray] | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.encoder.reset()
+        self._raw = obs
+        return self.encoder.update(obs), info
+
+    def step(self, action):
+        if self._raw is None:
+            raise RuntimeError("call reset() before step()")
+        u = np.asarray(action, dtype=np.float64)
+        env_action = self.decoder(u, self._raw["quaternion"])
+        self.encoder.note_action(u)
+        total = 0.0
+        for k in range(self.spec_.action_repeat):
+            obs, reward, terminated, truncated, info = self.env.step(env_action)
+            self.encoder.update(obs)
+            total += reward
+            if terminated or truncated:
+                break
+        self._raw = obs
+        info["env_steps"] = k + 1
+        return self.encoder.features(), float(total), terminated, truncated, info
