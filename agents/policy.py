@@ -16,6 +16,7 @@ held for ``action_repeat`` control steps. The evaluation harness resolves ``ppo:
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -94,7 +95,8 @@ class SB3Policy(Policy):
 
     ``act`` must see every control step's observation of an episode in order (the encoder
     integrates the pose error and the action is held between network calls); call :meth:`reset`
-    at each episode start (``predict`` does so on ``episode_start``).
+    at each episode start (``predict`` does so on ``episode_start``). ``last_stats["solve_ms"]``
+    is the network's inference time on decision steps and None on the held steps between them.
     """
 
     def __init__(self, model, spec: AgentSpec, scaling: ActionScaling, *, standoff: float, dt: float,
@@ -137,12 +139,17 @@ class SB3Policy(Policy):
         o = check_observation(obs)
         self.encoder.update(o)
         if self._count % self.spec.action_repeat == 0 or self._held is None:
+            t0 = time.perf_counter()
             x = self.normalize(self.encoder.features())
             u, _ = self.model.predict(x, deterministic=True)
             u = np.asarray(u, dtype=np.float64).reshape(4)
             self._held = self.decoder(u, o["quaternion"])
             self.encoder.note_action(u)
-            self.last_stats = {"policy_action": u}
+            self.last_stats = {"solve_ms": (time.perf_counter() - t0) * 1e3, "policy_action": u,
+                               "new_decision": True}
+        else:   # holding the last decision: no network call, no solve time to report
+            self.last_stats = {"solve_ms": None, "policy_action": self.last_stats["policy_action"],
+                               "new_decision": False}
         self._count += 1
         return self._held.copy()
 

@@ -194,6 +194,7 @@ class FeatureEncoder:
         self.dt = check_positive("dt", dt)
         self.max_rate = check_positive("max_rate", max_rate)
         self._decay = math.exp(-self.dt / config.integral_time_s)
+        self._gain = config.integral_time_s * (1.0 - self._decay)
         self._integral_limit = config.clip * config.integral_time_s * config.position_scale
         self.reset()
 
@@ -219,7 +220,8 @@ class FeatureEncoder:
         R = quat_to_rotmat_np(np.asarray(obs["quaternion"], dtype=np.float64))
         ideal = self.ideal_position(obs)
         err = ideal - x
-        self._integral = self._integral * self._decay + self.dt * err
+        # exact (zero-order-hold) discretisation of dI/dt = e - I / T: I -> T e for a constant e
+        self._integral = self._integral * self._decay + self._gain * err
         n = float(np.linalg.norm(self._integral))
         if n > self._integral_limit:
             self._integral *= self._integral_limit / n
