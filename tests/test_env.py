@@ -206,3 +206,16 @@ def test_camera_does_not_see_its_own_drone():
     targets = origin + 1.5 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
     assert not u.visibility.occluder.occluded(origin, targets).any()
     env.close()
+
+
+def test_seed_option_makes_the_first_reset_reproducible():
+    kw = dict(wind={"type": "dryden", "mean_speed": 4.0}, start_noise=0.5, seed=11)
+    a, b = make(**kw), make(**kw)
+    oa, _ = a.reset()
+    ob, _ = b.reset()
+    np.testing.assert_array_equal(oa["position"], ob["position"])
+    oc, _ = make(**{**kw, "seed": 12}).reset()
+    assert not np.allclose(oa["position"], oc["position"])
+    with pytest.raises(ValueError, match="seed"):
+        make(seed=-1)
+    a.close(); b.close()

@@ -92,10 +92,14 @@ class WindTurbineInspectionEnv(gym.Env):
         self._steps = 0
         self._phase_index = 0
         self._geometry_index = 0
+        self._seeded = False
         self._closed = False
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is None and not self._seeded:
+            seed = self.config.seed
+        self._seeded = True
         super().reset(seed=seed)
         if options:
             raise ValueError(f"reset options are not supported, got {options!r}")

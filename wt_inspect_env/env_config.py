@@ -81,6 +81,8 @@ class EnvConfig:
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and
         ``rotor_turn_deg`` come from the fields above.
+    seed: default seed of the first ``reset()`` called without one (so ``gym.make(..., seed=3)``
+        alone makes the run reproducible); later seedless resets continue the generator.
     end_hold_s: after the inspection point reaches the end of the path, the episode goes on for
         this long (the drone catches up and the last frames are taken) before it is truncated.
     """
@@ -109,6 +111,7 @@ class EnvConfig:
     working_margin: float = 30.0
     occlusion: bool = True
     end_hold_s: float = 2.0
+    seed: int | None = None
 
     def __post_init__(self) -> None:
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
@@ -143,6 +146,8 @@ class EnvConfig:
         check_positive("start_noise", self.start_noise, allow_zero=True)
         check_positive("working_margin", self.working_margin)
         check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
+        if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0):
+            raise ValueError(f"seed must be a non-negative integer or None, got {self.seed!r}")
         if self.planner is None:
             put("planner", {})
         elif not isinstance(self.planner, Mapping):
