@@ -9,8 +9,9 @@ format, with the reward statistics too) is only needed to *resume* training.
 
 :func:`load_sb3_policy` rebuilds the exact training-time pipeline around the network: Dict
 observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> network
-(deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action,
-held for ``action_repeat`` control steps. The evaluation harness resolves ``ppo:PATH`` /
+(deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action;
+the network's action is held for ``action_repeat`` control steps and decoded at each of them with
+the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation harness resolves ``ppo:PATH`` /
 ``sac:PATH`` controller names through it.
 """
 from __future__ import annotations
@@ -142,16 +143,15 @@ class SB3Policy(Policy):
             t0 = time.perf_counter()
             x = self.normalize(self.encoder.features())
             u, _ = self.model.predict(x, deterministic=True)
-            u = np.asarray(u, dtype=np.float64).reshape(4)
-            self._held = self.decoder(u, o["quaternion"])
-            self.encoder.note_action(u)
-            self.last_stats = {"solve_ms": (time.perf_counter() - t0) * 1e3, "policy_action": u,
+            self._held = np.asarray(u, dtype=np.float64).reshape(4)
+            self.encoder.note_action(self._held)
+            self.last_stats = {"solve_ms": (time.perf_counter() - t0) * 1e3, "policy_action": self._held,
                                "new_decision": True}
         else:   # holding the last decision: no network call, no solve time to report
-            self.last_stats = {"solve_ms": None, "policy_action": self.last_stats["policy_action"],
-                               "new_decision": False}
+            self.last_stats = {"solve_ms": None, "policy_action": self._held, "new_decision": False}
         self._count += 1
-        return self._held.copy()
+        # the held policy action is decoded with the current attitude, as in training
+        return self.decoder(self._held, o["quaternion"])
 
 
 def load_sb3_policy(algo: str, path: str | Path, env=None) -> SB3Policy:

@@ -18,7 +18,7 @@ from wt_inspect_env.env_config import EnvConfig
 from wt_inspect_env.validation import check_choice, check_positive, check_unknown_options
 
 from .policy import ALGOS
-from .wrappers import AgentSpec
+from .wrappers import AgentSpec, ShapingConfig
 
 RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu", "elu", "leaky_relu")
@@ -37,7 +37,8 @@ class Recipe:
 
     env: ``gym.make`` options for the training envs (``task`` comes from the command line).
     eval_env: options overriding ``env`` for the periodic evaluation (e.g. no start noise, the full
-        mission length). agent: :class:`AgentSpec` fields. normalize: VecNormalize switches.
+        mission length). agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
+        (:class:`~agents.wrappers.ShapingConfig`). normalize: VecNormalize switches.
     algo_kwargs: keyword arguments of the stable-baselines3 algorithm; ``learning_rate_final``
         (optional) makes the learning rate decay linearly to it. policy_kwargs: ``net_arch``,
         ``activation_fn`` (a name from ``ACTIVATIONS``) and the algorithm's other policy options.
@@ -50,6 +51,7 @@ class Recipe:
     env: dict = field(default_factory=dict)
     eval_env: dict = field(default_factory=dict)
     agent: Any = field(default_factory=AgentSpec)
+    shaping: Any = field(default_factory=ShapingConfig)
     normalize: dict = field(default_factory=lambda: {"obs": True, "reward": True})
     algo_kwargs: dict = field(default_factory=dict)
     policy_kwargs: dict = field(default_factory=dict)
@@ -74,6 +76,14 @@ class Recipe:
         if not isinstance(agent, AgentSpec):
             raise ValueError(f"recipe agent must be an AgentSpec or a dict of its fields, got {agent!r}")
         object.__setattr__(self, "agent", agent)
+        shaping = self.shaping
+        if isinstance(shaping, Mapping):
+            check_unknown_options("recipe shaping", shaping.keys(),
+                                  [f.name for f in dataclasses.fields(ShapingConfig)])
+            shaping = ShapingConfig(**dict(shaping))
+        if not isinstance(shaping, ShapingConfig):
+            raise ValueError(f"recipe shaping must be a ShapingConfig or a dict of its fields, got {shaping!r}")
+        object.__setattr__(self, "shaping", shaping)
         check_unknown_options("recipe normalize", self.normalize.keys(), NORMALIZE_KEYS)
         for key in ("clip_obs", "clip_reward"):
             if key in self.normalize:
@@ -96,6 +106,7 @@ class Recipe:
     def to_dict(self) -> dict[str, Any]:
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         d["agent"] = self.agent.to_dict()
+        d["shaping"] = dataclasses.asdict(self.shaping)
         return json.loads(json.dumps(d))
 
     @classmethod
