@@ -50,7 +50,8 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
     torch.set_num_threads(rec.torch_threads)
     k = rec.spec.action_repeat
     decisions = math.ceil(steps / (k * n_envs))     # vector steps
-    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs, shaping=rec.shaping),
+    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs, shaping=rec.shaping,
+                                     variants=rec.env_variants, weights=rec.env_variant_weights),
                         gamma=float(rec.algo_kwargs.get("gamma", 0.99)))
     rng = np.random.default_rng(seed)
     vec_rates, learn_rates = [], []

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from wt_inspect_env.env_config import EnvConfig
+from wt_inspect_env.wind import make_wind
 from wt_inspect_env.validation import check_choice, check_positive, check_unknown_options
 
 from .policy import ALGOS
@@ -23,6 +24,13 @@ from .wrappers import AgentSpec, ShapingConfig
 RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
 ACTIVATIONS: tuple[str, ...] = ("tanh", "relu", "elu", "leaky_relu")
 NORMALIZE_KEYS: tuple[str, ...] = ("obs", "reward", "clip_obs", "clip_reward")
+
+
+def _check_env_options(options: Mapping[str, Any]) -> None:
+    """Validate ``gym.make`` options without building an env (the wind spec is checked by building
+    the wind field: EnvConfig keeps it as given)."""
+    cfg = EnvConfig.from_kwargs(**dict(options))
+    make_wind(cfg.wind)
 
 
 def _positive_int(name: str, value: Any) -> int:
@@ -37,7 +45,8 @@ class Recipe:
 
     env: ``gym.make`` options for the training envs (``task`` comes from the command line).
     eval_env: options overriding ``env`` for the periodic evaluation (e.g. no start noise, the full
-        mission length). agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
+        mission length). env_variants: option dicts merged over ``env``, one drawn per training
+        episode (weights ``env_variant_weights``, default equal) - e.g. several wind speeds. agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
         (:class:`~agents.wrappers.ShapingConfig`). normalize: VecNormalize switches.
     algo_kwargs: keyword arguments of the stable-baselines3 algorithm; ``learning_rate_final``
         (optional) makes the learning rate decay linearly to it. policy_kwargs: ``net_arch``,
@@ -50,6 +59,8 @@ class Recipe:
     description: str = ""
     env: dict = field(default_factory=dict)
     eval_env: dict = field(default_factory=dict)
+    env_variants: list = field(default_factory=list)
+    env_variant_weights: Any = None
     agent: Any = field(default_factory=AgentSpec)
     shaping: Any = field(default_factory=ShapingConfig)
     normalize: dict = field(default_factory=lambda: {"obs": True, "reward": True})
@@ -69,7 +80,22 @@ class Recipe:
             opts = dict(getattr(self, name))
             if "task" in opts:
                 raise ValueError(f"recipe {name} must not set 'task' (it comes from --task)")
-            EnvConfig.from_kwargs(**{**dict(self.env), **opts})   # validates names and values
+            _check_env_options({**dict(self.env), **opts})
+        if not isinstance(self.env_variants, (list, tuple)) or not all(isinstance(v, Mapping) for v in self.env_variants):
+            raise ValueError(f"recipe env_variants must be a list of dicts, got {self.env_variants!r}")
+        for i, v in enumerate(self.env_variants):
+            if "task" in v:
+                raise ValueError(f"recipe env_variants[{i}] must not set 'task'")
+            _check_env_options({**dict(self.env), **dict(v)})
+        object.__setattr__(self, "env_variants", [dict(v) for v in self.env_variants])
+        w = self.env_variant_weights
+        if w is not None:
+            if not isinstance(w, (list, tuple)) or len(w) != len(self.env_variants):
+                raise ValueError(f"recipe env_variant_weights must be a list of {len(self.env_variants)} "
+                                 f"numbers (one per variant), got {w!r}")
+            for i, x in enumerate(w):
+                check_positive(f"recipe env_variant_weights[{i}]", x)
+            object.__setattr__(self, "env_variant_weights", [float(x) for x in w])
         agent = self.agent
         if isinstance(agent, Mapping):
             agent = AgentSpec.from_dict(agent)

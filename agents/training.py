@@ -43,7 +43,7 @@ from wt_inspect_env.validation import check_choice
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
 from .recipe import Recipe, default_recipe_path, load_recipe
-from .wrappers import AgentSpec, InspectionAgentEnv, ShapingConfig
+from .wrappers import AgentSpec, EpisodeVariants, InspectionAgentEnv, ShapingConfig
 
 TASK_ENV_IDS: dict[str, str] = {task: env_id for env_id, task in wt_inspect_env.ENV_IDS.items()}
 METRIC_KEYS: tuple[str, ...] = ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m",
@@ -58,23 +58,30 @@ def make_raw_env(task: str, options: Mapping[str, Any]) -> gym.Env:
 
 
 def make_agent_env(task: str, options: Mapping[str, Any], spec: AgentSpec,
-                   shaping: ShapingConfig | None = None) -> gym.Env:
-    """Raw env -> :class:`InspectionAgentEnv` -> stable-baselines3 ``Monitor`` (episode stats)."""
+                   shaping: ShapingConfig | None = None, variants: Sequence[Mapping[str, Any]] = (),
+                   weights: Sequence[float] | None = None) -> gym.Env:
+    """Raw env -> :class:`InspectionAgentEnv` -> stable-baselines3 ``Monitor`` (episode stats).
+    With ``variants`` (option dicts merged over ``options``), one agent env per variant behind an
+    :class:`~agents.wrappers.EpisodeVariants` that draws one per episode."""
     from stable_baselines3.common.monitor import Monitor
-    return Monitor(InspectionAgentEnv(make_raw_env(task, options), spec, shaping))
+    if not variants:
+        return Monitor(InspectionAgentEnv(make_raw_env(task, options), spec, shaping))
+    envs = [InspectionAgentEnv(make_raw_env(task, {**dict(options), **dict(v)}), spec, shaping) for v in variants]
+    return Monitor(EpisodeVariants(envs, None if weights is None else list(weights)))
 
 
-def _env_factory(task: str, options: Mapping[str, Any], spec: AgentSpec,
-                 shaping: ShapingConfig | None) -> Callable[[], gym.Env]:
+def _env_factory(task: str, options: Mapping[str, Any], spec: AgentSpec, shaping: ShapingConfig | None,
+                 variants: Sequence[Mapping[str, Any]], weights: Sequence[float] | None) -> Callable[[], gym.Env]:
     opts = dict(options)
-    return lambda: make_agent_env(task, opts, spec, shaping)
+    return lambda: make_agent_env(task, opts, spec, shaping, variants, weights)
 
 
 def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs: int,
-                 subprocess: bool | None = None, shaping: ShapingConfig | None = None):
+                 subprocess: bool | None = None, shaping: ShapingConfig | None = None,
+                 variants: Sequence[Mapping[str, Any]] = (), weights: Sequence[float] | None = None):
     """``n_envs`` agent envs, in subprocesses unless ``n_envs == 1`` (or ``subprocess=False``)."""
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
-    fns = [_env_factory(task, options, spec, shaping) for _ in range(n_envs)]
+    fns = [_env_factory(task, options, spec, shaping, variants, weights) for _ in range(n_envs)]
     use_sub = n_envs > 1 if subprocess is None else subprocess
     return SubprocVecEnv(fns, start_method="forkserver") if use_sub else DummyVecEnv(fns)
 
@@ -363,7 +370,8 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
     cls = algo_class(algo)
-    venv = make_vec_env(task, rec.env, rec.spec, n_envs, subprocess=subprocess, shaping=rec.shaping)
+    venv = make_vec_env(task, rec.env, rec.spec, n_envs, subprocess=subprocess, shaping=rec.shaping,
+                        variants=rec.env_variants, weights=rec.env_variant_weights)
     norm = dict(rec.normalize)
     use_norm = bool(norm.get("obs", True) or norm.get("reward", True))
     gamma = float(rec.algo_kwargs.get("gamma", 0.99))

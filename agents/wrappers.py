@@ -423,3 +423,49 @@ class InspectionAgentEnv(gym.Wrapper):
         info["shaping_reward"] = shaped
         total += shaped
         return self.encoder.features(), float(total), terminated, truncated, info
+
+
+class EpisodeVariants(gym.Env):
+    """Picks one of several environments (same spaces) at every reset: domain randomisation over
+    conditions an env fixes at construction, such as the wind. ``weights`` (default equal) set how
+    often each is drawn; the draw and each inner env's reset seed come from a Generator seeded by
+    the first seeded reset, so a seeded run is reproducible. ``info["variant"]`` names the index."""
+
+    def __init__(self, envs: list[gym.Env], weights: list[float] | None = None) -> None:
+        super().__init__()
+        if not envs:
+            raise ValueError("EpisodeVariants needs at least one environment")
+        first = envs[0]
+        for i, e in enumerate(envs[1:], 1):
+            if e.observation_space != first.observation_space or e.action_space != first.action_space:
+                raise ValueError(f"environment variant {i} has other observation/action spaces than variant 0")
+        w = np.ones(len(envs)) if weights is None else np.array(
+            [check_positive(f"variant weight[{i}]", v) for i, v in enumerate(weights)])
+        if len(w) != len(envs):
+            raise ValueError(f"variant weights must have {len(envs)} entries, got {len(w)}")
+        self.envs = list(envs)
+        self.p = w / w.sum()
+        self.observation_space = first.observation_space
+        self.action_space = first.action_space
+        self._rng: np.random.Generator | None = None
+        self.active: int | None = None
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        if seed is not None or self._rng is None:
+            self._rng = np.random.default_rng(seed)
+        self.active = int(self._rng.choice(len(self.envs), p=self.p))
+        obs, info = self.envs[self.active].reset(seed=int(self._rng.integers(2**31 - 1)), options=options)
+        info["variant"] = self.active
+        return obs, info
+
+    def step(self, action):
+        if self.active is None:
+            raise RuntimeError("call reset() before step()")
+        obs, reward, terminated, truncated, info = self.envs[self.active].step(action)
+        info["variant"] = self.active
+        return obs, reward, terminated, truncated, info
+
+    def close(self) -> None:
+        for e in self.envs:
+            e.close()
+        super().close()

@@ -212,6 +212,31 @@ def test_coarse_distance_shaping_is_added_and_reported():
         ShapingConfig(distance_coarse_scale=0.0)
 
 
+def test_episode_variants_draw_reproducibly_by_weight_and_check_spaces():
+    from agents.wrappers import EpisodeVariants
+    envs = [InspectionAgentEnv(gym.make(SURFACE, wind=w), AgentSpec()) for w in ("none", "gust")]
+    var = EpisodeVariants(envs, weights=[3.0, 1.0])
+    draws = []
+    for k in range(40):
+        _, info = var.reset(seed=11 if k == 0 else None)
+        draws.append(info["variant"])
+    assert set(draws) == {0, 1} and 0.5 < draws.count(0) / 40 < 0.95
+    first = [var.reset(seed=11)[1]["variant"]] + [var.reset()[1]["variant"] for _ in range(39)]
+    assert first == draws                       # reseeding replays the same sequence
+    var.reset(seed=2)
+    _, _, _, _, info = var.step(np.zeros(4))
+    assert info["variant"] == var.active
+    # the wind really differs between the variants
+    winds = [e.env.unwrapped.config.wind for e in envs]
+    assert winds[0] != winds[1]
+    with pytest.raises(ValueError, match="spaces"):
+        EpisodeVariants([envs[0], InspectionAgentEnv(gym.make(SURFACE), AgentSpec(action_repeat=2,
+                         features=FeatureConfig(groups=("ideal_body",))))])
+    with pytest.raises(ValueError, match="weights"):
+        EpisodeVariants(envs, weights=[1.0])
+    var.close()
+
+
 # ----------------------------------------------------------------------------------------- recipes
 def test_shipped_recipes_load_and_bad_keys_list_valid_ones(tmp_path):
     from agents.recipe import RECIPE_DIR
@@ -227,6 +252,10 @@ def test_shipped_recipes_load_and_bad_keys_list_valid_ones(tmp_path):
         Recipe.from_dict({**data, "policy_kwargs": {"activation_fn": "swish"}})
     with pytest.raises(ValueError, match="not found"):
         load_recipe(tmp_path / "nope.json")
+    with pytest.raises(ValueError, match="mean_sped"):
+        Recipe.from_dict({**data, "env_variants": [{"wind": {"type": "gust", "mean_sped": 3}}]})
+    with pytest.raises(ValueError, match="env_variant_weights"):
+        Recipe.from_dict({**data, "env_variants": [{"wind": "none"}], "env_variant_weights": [1.0, 2.0]})
 
 
 # ------------------------------------------------------------------------------------------ names
