@@ -225,7 +225,8 @@ class TrainingRun:
                "return": float(info["episode"]["r"]) if "episode" in info else float("nan"),
                "time_s": float(info.get("time", float("nan"))),
                **{k: float(m[k]) for k in ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m")},
-               "termination": info.get("termination") or ("complete" if info.get("mission_complete") else "time")}
+               "termination": info.get("termination") or ("complete" if info.get("mission_complete") else "time"),
+               "variant": info.get("variant", "")}
         new = not self._episodes_path.exists()
         with open(self._episodes_path, "a", newline="") as fh:
             w = csv.DictWriter(fh, fieldnames=list(row))
