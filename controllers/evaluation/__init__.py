@@ -1,0 +1,269 @@
+"""Evaluation harness: score any policy on the paper's scenarios, reproduce its table and figures.
+
+Python API::
+
+    from controllers.evaluation import evaluate_policy, run_evaluation
+
+    # one run of any object with reset(seed=None) / act(obs) (or a factory env -> policy, or a
+    # registered name such as "vtnmpc"), scored exactly as the command line scores the MPCs
+    res = evaluate_policy(my_policy, scenario="surface", wind=4.0, seed=0)
+    res.metrics["coverage"], res.row()["safety"], res.arrays["distance"]
+
+    # a sweep, in parallel, resumable, with results.csv / results.md / figures in out
+    ev = run_evaluation("paper", ["vtnmpc", "nmpc", "pampc"], winds=[0, 4, 7], out="results/paper")
+
+Command line: ``wt-inspect evaluate`` (:mod:`.cli`). Layout of the output directory::
+
+    out/results.csv          one row per run (see report.CSV_COLUMNS)
+    out/results.md           the paper's table layout beside the paper's numbers, all runs, setup
+    out/*.png                figures (see figures)
+    out/runs/*.npz           one file per run: trajectory and per-step metrics (see runner)
+
+Resume: a run's file is written atomically when it finishes and named by a hash of everything
+that determines its outcome (scenario options, controller, wind, seed, time cap), so rerunning the
+same sweep skips the finished runs and an interrupted sweep loses only the runs in flight.
+"""
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import secrets
+import shlex
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Mapping, Sequence
+
+from . import registry
+from .backends import BACKENDS, check_jobs, run_specs
+from .registry import CONTROLLERS
+from .report import ReportContext, write_csv, write_markdown
+from .runner import RunResult, RunSpec, execute, load_run, make_spec, save_run
+from .scenarios import SCENARIOS, WIND_TYPES, SweepSpec, env_options, get_scenario
+
+__all__ = ["evaluate_policy", "run_evaluation", "Evaluation", "RunResult", "RunSpec", "SCENARIOS", "CONTROLLERS",
+           "BACKENDS", "WIND_TYPES", "OutputDirError", "load_run", "env_options"]
+
+
+class OutputDirError(ValueError):
+    """The output directory cannot be created or written (the message names the path)."""
+
+
+def prepare_out_dir(out: str | os.PathLike) -> Path:
+    """Create ``out`` (and ``out/runs``) and prove it writable, before any run starts."""
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise OutputDirError(f"output directory {str(path)!r} exists and is not a directory")
+    try:
+        (path / "runs").mkdir(parents=True, exist_ok=True)
+        probe = path / f".write-test-{secrets.token_hex(4)}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputDirError(f"cannot write to output directory {str(path)!r}: {exc.strerror or exc}") from None
+    return path
+
+
+def _is_policy(obj: Any) -> bool:
+    return callable(getattr(obj, "act", None)) and callable(getattr(obj, "reset", None))
+
+
+def evaluate_policy(policy: Any, scenario: str = "surface", wind: float = 4.0, seed: int = 0, *,
+                    wind_type: str = "gust", wind_options: Mapping[str, Any] | None = None,
+                    turbine: Mapping[str, Any] | None = None, drone: str | None = None,
+                    env_overrides: Mapping[str, Any] | None = None, max_time: float | None = None,
+                    record: bool = True, record_every: int = 1, name: str | None = None,
+                    save_dir: str | os.PathLike | None = None) -> RunResult:
+    """Score one policy on one scenario run, the same way the command line does.
+
+    ``policy``: an object with ``reset(seed=None)`` and ``act(obs) -> normalised action`` (see
+    :class:`controllers.policy.Policy`; it must match the scenario's drone and stand-off - the
+    environment's ``params`` and ``config.standoff``), a factory ``env -> policy`` called with
+    the unwrapped environment (recommended: it can read those), or a registered controller name.
+    ``max_time`` caps the simulated seconds. ``save_dir``: also write the run file there.
+    """
+    if isinstance(policy, str):
+        label, factory = policy, None
+    elif _is_policy(policy) or callable(policy):
+        label, factory = name or getattr(policy, "name", None) or type(policy).__name__, policy
+        if not isinstance(label, str):
+            label = type(policy).__name__
+    else:
+        raise ValueError(f"policy must be an object with reset()/act(), a factory env -> policy or a controller "
+                         f"name ({registry.valid_names()}), got {policy!r}")
+    opts = env_options(scenario, wind, wind_type=wind_type, wind_options=wind_options, turbine=turbine,
+                       drone=drone, overrides=env_overrides)
+    spec = make_spec(scenario, label, wind, seed, opts, max_time, record_every, custom=factory is not None)
+    result = execute(spec, factory, record=record)
+    if save_dir is not None:
+        out = prepare_out_dir(save_dir)
+        save_run(result, out / "runs" / spec.filename)
+    return result
+
+
+@dataclass
+class Evaluation:
+    """Outcome of :func:`run_evaluation`: every run of the sweep (metrics only, trajectories are in
+    the run files: ``load_run(r.path)``), what was executed and resumed, and the files written."""
+
+    out: Path
+    results: list[RunResult]
+    n_ran: int
+    n_resumed: int
+    wall_time_s: float
+    files: dict[str, Any] = field(default_factory=dict)
+
+    def rows(self) -> list[dict[str, Any]]:
+        return [r.row() for r in self.results]
+
+
+def _floats(name: str, values: Iterable[Any]) -> list[float]:
+    out = []
+    for v in values:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            raise ValueError(f"{name} must be numbers, got {v!r}") from None
+        if not math.isfinite(f) or f < 0:
+            raise ValueError(f"{name} must be non-negative finite numbers, got {v!r}")
+        out.append(f)
+    if not out:
+        raise ValueError(f"{name} must not be empty")
+    return list(dict.fromkeys(out))
+
+
+def _seeds(values: Iterable[Any]) -> list[int]:
+    out = []
+    for v in values:
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"seeds must be non-negative integers, got {v!r}")
+        out.append(v)
+    if not out:
+        raise ValueError("seeds must not be empty")
+    return list(dict.fromkeys(out))
+
+
+def plan_sweep(scenario: str, controllers: Sequence[str], winds: Sequence[float], seeds: Sequence[int], *,
+               sweep: SweepSpec, max_time: float | None, record_every: int,
+               custom: Iterable[str] = ()) -> list[RunSpec]:
+    """The run specs of a sweep in table order (wind, controller, seed); all validation here."""
+    custom = set(custom)
+    specs = []
+    for wind in winds:
+        opts = sweep.options(wind)
+        for c in controllers:
+            for s in seeds:
+                specs.append(make_spec(scenario, c, wind, s, opts, max_time, record_every, custom=c in custom))
+    return specs
+
+
+def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping[str, Any] = ("vtnmpc", "nmpc", "pampc"),
+                   winds: Sequence[float] | None = None, seeds: Sequence[int] = (0,), *,
+                   out: str | os.PathLike, backend: str = "local", jobs: int | None = None,
+                   address: str | None = None, max_time: float | None = None, wind_type: str = "gust",
+                   wind_options: Mapping[str, Any] | None = None, turbine: Mapping[str, Any] | None = None,
+                   drone: str | None = None, env_overrides: Mapping[str, Any] | None = None,
+                   record_every: int = 1, figures: bool = True, progress: bool = True, rerun: bool = False,
+                   command: str | None = None,
+                   on_result: Callable[[RunResult], None] | None = None) -> Evaluation:
+    """Run a sweep (controllers x winds x seeds) on ``backend`` and write the results to ``out``.
+
+    ``controllers``: registered names / ``ppo:PATH`` strings, or a mapping ``label -> name, policy
+    factory (env -> policy) or policy object`` for custom policies (with several processes a
+    factory must be picklable; an object is used as is only with ``jobs=1``). ``winds`` defaults
+    to the scenario's. Finished runs in ``out/runs`` are reused unless ``rerun``. Raises
+    ``ValueError`` for bad arguments (naming them) and :class:`OutputDirError` if ``out`` cannot be
+    written - both before any run starts. ``KeyboardInterrupt`` writes the results of the finished
+    runs (marked incomplete) and propagates.
+    """
+    t0 = time.perf_counter()
+    sc = get_scenario(scenario)
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
+    jobs = check_jobs(jobs)
+    if isinstance(controllers, Mapping):
+        labels = list(controllers)
+        factories = {k: v for k, v in controllers.items() if not isinstance(v, str)}
+        aliases = {k: v for k, v in controllers.items() if isinstance(v, str)}
+        if any(k != v for k, v in aliases.items()):
+            raise ValueError(f"a controller given by name must use its name as label, got {aliases}")
+        for k, v in factories.items():
+            if _is_policy(v) and (jobs > 1 or backend != "local"):
+                raise ValueError(f"controller {k!r} is a policy object: pass a factory (env -> policy) to run it in "
+                                 "worker processes, or use backend='local', jobs=1")
+            if not callable(v):
+                raise ValueError(f"controller {k!r} must be a name, a factory or a policy object, got {v!r}")
+    else:
+        if isinstance(controllers, str):
+            controllers = [c.strip() for c in controllers.split(",") if c.strip()]
+        labels, factories = list(dict.fromkeys(controllers)), {}
+    if not labels:
+        raise ValueError(f"no controllers given; valid: {registry.valid_names()}")
+    winds_l = _floats("winds", sc.winds if winds is None else winds)
+    seeds_l = _seeds(seeds)
+    sweep = SweepSpec(scenario, wind_type, dict(wind_options or {}), dict(turbine or {}), drone,
+                      dict(env_overrides or {}))
+    specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
+                       record_every=record_every, custom=factories)
+    out_dir = prepare_out_dir(out)
+
+    done: dict[str, RunResult] = {}
+    todo: list[RunSpec] = []
+    for spec in specs:
+        path = out_dir / "runs" / spec.filename
+        if path.exists() and not rerun:
+            with contextlib.suppress(ValueError):
+                res = load_run(path, arrays=False)
+                if res.spec.key == spec.key:
+                    done[spec.filename] = res
+                    continue
+        todo.append(spec)
+    n_resumed = len(done)
+
+    def finished(res: RunResult) -> None:
+        save_run(res, out_dir / "runs" / res.spec.filename)
+        res.arrays = {}   # keep memory flat; figures reload what they draw
+        done[res.spec.filename] = res
+        if on_result is not None:
+            on_result(res)
+
+    if progress and n_resumed:
+        print(f"resuming: {n_resumed} of {len(specs)} runs already finished in {out_dir / 'runs'}", file=sys.stderr)
+    ctx = ReportContext(scenario=scenario, wind_type=wind_type, backend=backend, jobs=jobs,
+                        n_planned=len(specs), n_resumed=n_resumed,
+                        command=command or "", notes=[])
+    try:
+        if todo:
+            run_specs(backend, todo, finished, jobs=jobs, address=address, factories=factories, progress=progress)
+    except BaseException:
+        results = [done[s.filename] for s in specs if s.filename in done]
+        if results:
+            ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
+            write_csv(results, out_dir / "results.csv")
+            write_markdown(results, ctx, out_dir / "results.md")
+        raise
+    results = [done[s.filename] for s in specs]
+    files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
+    if figures:
+        from .figures import make_figures   # matplotlib only when drawing
+        files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario)
+    ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
+    files["md"] = write_markdown(results, ctx, out_dir / "results.md")
+    return Evaluation(out=out_dir, results=results, n_ran=ctx.n_ran, n_resumed=n_resumed,
+                      wall_time_s=ctx.wall_time_s, files=files)
+
+
+def _first_seeds(results: Sequence[RunResult]) -> list[RunResult]:
+    """For each (controller, wind) the run with the lowest seed (the one the figures draw)."""
+    best: dict[tuple[str, float], RunResult] = {}
+    for r in results:
+        k = (r.spec.controller, r.spec.wind)
+        if k not in best or r.spec.seed < best[k].spec.seed:
+            best[k] = r
+    return list(best.values())
+
+
+def command_line(argv: Sequence[str], prog: str) -> str:
+    return " ".join([prog] + [shlex.quote(a) for a in argv])

@@ -1,0 +1,366 @@
+"""One evaluation run: build the environment, fly one policy, record the trajectory, save it.
+
+Run file format (``.npz``, written atomically: temporary file + rename, so a file that exists is
+complete and an interrupted run leaves nothing). One sample per control step; sample 0 is the
+state after ``reset``, sample k the state after the k-th step. ``N`` samples, ``M`` triangles:
+
+===================  ===========  =========================================================
+key                  shape/dtype  meaning
+===================  ===========  =========================================================
+``meta``             str (JSON)   ``format``, ``spec`` (:class:`RunSpec` as a dict),
+                                  ``env_options``, ``metrics`` (InspectionMetrics dict),
+                                  ``termination``, ``mission_complete``, ``steps``,
+                                  ``sim_time_s``, ``wall_time_s``, ``d_ref``,
+                                  ``safety_margin``, solve-time statistics, ``record_every``
+``t``                (N,) f8      simulated time [s]
+``position``         (N,3) f4     drone position, world frame [m]
+``quaternion``       (N,4) f4     attitude (qx, qy, qz, qw)
+``velocity_body``    (N,3) f4     body-frame velocity [m/s]
+``action``           (N,4) f4     normalised action chosen from sample k (NaN for the last)
+``point``/``normal`` (N,3) f4     inspection point and its outward normal
+``ideal_position``   (N,3) f4     the stand-off pose the reference asks for
+``wind``             (N,3) f4     air velocity at the drone [m/s]
+``distance``         (N,) f4      horizontal distance |a_xy| to the inspection point [m]
+``heading``          (N,) f4      the paper's heading function h (CM = its mean)
+``inspecting``       (N,) bool    sample counts for SM/CM (False while waiting for the rotor)
+``phase``            (N,) i1      mission phase (1, 2)
+``collision``        (N,) bool    in contact with the turbine or the ground
+``coverage``         (N,) f4      coverage so far (fraction of the mission's triangles)
+``solve_ms``         (N,) f4      the policy's own solve time (``last_stats.solve_ms``) or
+                                  NaN if it reports none; NaN for the last sample
+``act_ms``           (N,) f4      wall time of ``policy.act`` measured here (NaN for last)
+``coverage_counts``  (M,) i4      frames in which each mission triangle was seen
+``inspected``        (M,) i4      indices of those triangles in the turbine's blade arrays
+``blade_triangles``  (P,B,3,3) f4 the turbine's blade triangles in each of its P phases
+``triangle_blade``   (B,) i2      blade of each blade triangle (phase 1 numbering)
+``triangle_face``    (B,) i2      face (0..3 around the chord) of each blade triangle
+``rotor_center``     (3,) f8      rotor centre in phase 1 [m]
+===================  ===========  =========================================================
+
+``record_every`` > 1 keeps every k-th sample (and always the last) to make files smaller; the
+metrics are always those of the environment over every step.
+"""
+from __future__ import annotations
+
+import hashlib
+import io
+import json
+import math
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import gymnasium as gym
+import numpy as np
+
+import wt_inspect_env  # noqa: F401 - registers the environment ids
+from wt_inspect_env.atomic_io import atomic_path
+from wt_inspect_env.metrics import heading_and_distance
+
+from . import registry
+
+FORMAT = "wt-inspect-run/1"
+ENV_ID = "WindTurbineInspection-v0"   # the task comes from the options
+# Metric columns of a run (results.csv): name -> key of InspectionMetrics.
+METRIC_COLUMNS = {
+    "coverage": "coverage", "safety": "safety_sm", "centering": "centering_cm",
+    "mean_distance": "mean_distance_m", "min_distance": "min_distance_m", "max_distance": "max_distance_m",
+    "rms_distance_error": "rms_distance_error_m", "collisions": "collisions", "flight_time": "flight_time_s",
+    "path_length": "path_length_m", "mean_heading_error_deg": "mean_heading_error_deg",
+}
+
+ProgressCallback = Callable[[float, float], None]
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """What one run is: plain data (picklable, JSON-able) so any backend can execute it."""
+
+    scenario: str
+    controller: str
+    wind: float
+    seed: int
+    env_options: Mapping[str, Any]
+    max_time: float | None = None
+    record_every: int = 1
+    controller_id: str = ""       # registry.fingerprint(controller); filled by make_spec
+
+    @property
+    def key(self) -> str:
+        """Hash of everything that changes the outcome: a changed option is a different run."""
+        payload = json.dumps({"controller": self.controller_id or self.controller, "wind": self.wind,
+                              "seed": self.seed, "env": self.env_options, "max_time": self.max_time,
+                              "record_every": self.record_every}, sort_keys=True, default=str)
+        return hashlib.sha256(payload.encode()).hexdigest()[:10]
+
+    @property
+    def filename(self) -> str:
+        ctrl = "".join(c if c.isalnum() or c in "-_" else "-" for c in self.controller)[:40]
+        return f"{self.scenario}_{ctrl}_w{self.wind:g}_s{self.seed}_{self.key}.npz"
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self) | {"env_options": dict(self.env_options)}
+
+
+def make_spec(scenario: str, controller: str, wind: float, seed: int, env_options: Mapping[str, Any],
+              max_time: float | None = None, record_every: int = 1, *, custom: bool = False) -> RunSpec:
+    """A validated :class:`RunSpec` (controller name checked, model file fingerprinted).
+    ``custom``: ``controller`` is only a label for a policy supplied by the caller (resuming then
+    trusts the label: give a changed policy a new label, or rerun)."""
+    if custom:
+        if not isinstance(controller, str) or not controller:
+            raise ValueError(f"a custom policy needs a non-empty label, got {controller!r}")
+        controller_id = f"custom:{controller}"
+    else:
+        registry.check_controller(controller)
+        controller_id = registry.fingerprint(controller)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if max_time is not None and not (isinstance(max_time, (int, float)) and math.isfinite(max_time)
+                                     and max_time > 0):
+        raise ValueError(f"max_time must be a positive number of simulated seconds, got {max_time!r}")
+    if isinstance(record_every, bool) or not isinstance(record_every, (int, np.integer)) or record_every < 1:
+        raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
+    env_options = json.loads(json.dumps(env_options))   # plain JSON data, stable for hashing
+    return RunSpec(scenario, controller, float(wind), int(seed), env_options,
+                   None if max_time is None else float(max_time), int(record_every), controller_id)
+
+
+@dataclass
+class RunResult:
+    """Outcome of one run: the environment's metrics, how it ended, timing, and (optionally) the
+    recorded trajectory (see the module docstring for the arrays)."""
+
+    spec: RunSpec
+    metrics: dict[str, Any]
+    termination: str | None
+    mission_complete: bool
+    steps: int
+    sim_time_s: float
+    wall_time_s: float
+    solve: dict[str, float]
+    d_ref: float
+    safety_margin: float
+    arrays: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
+    path: Path | None = None
+
+    def row(self) -> dict[str, Any]:
+        """One row of results.csv (fractions in [0, 1], distances in m, times in s / ms)."""
+        s = self.spec
+        row: dict[str, Any] = {"scenario": s.scenario, "controller": s.controller, "wind": s.wind, "seed": s.seed}
+        for col, key in METRIC_COLUMNS.items():
+            row[col] = self.metrics.get(key, math.nan)
+        row.update(self.solve)
+        row.update({"termination": self.termination or "", "mission_complete": self.mission_complete,
+                    "steps": self.steps, "sim_time": self.sim_time_s, "wall_time": self.wall_time_s,
+                    "run_file": self.path.name if self.path else ""})
+        return row
+
+    def meta(self) -> dict[str, Any]:
+        return {"format": FORMAT, "spec": self.spec.to_dict(), "metrics": self.metrics,
+                "termination": self.termination, "mission_complete": self.mission_complete,
+                "steps": self.steps, "sim_time_s": self.sim_time_s, "wall_time_s": self.wall_time_s,
+                "solve": self.solve, "d_ref": self.d_ref, "safety_margin": self.safety_margin}
+
+
+def _stats_ms(values: np.ndarray) -> tuple[float, float]:
+    v = values[np.isfinite(values)]
+    if not len(v):
+        return math.nan, math.nan
+    return float(np.median(v)), float(np.percentile(v, 99))
+
+
+class _Recorder:
+    """Per-step arrays in preallocated, growing float32 buffers (appending Python lists of 30
+    floats per step for 110k steps would cost more than the arrays' final size)."""
+
+    SPECS = {"t": (np.float64, ()), "position": (np.float32, (3,)), "quaternion": (np.float32, (4,)),
+             "velocity_body": (np.float32, (3,)), "action": (np.float32, (4,)), "point": (np.float32, (3,)),
+             "normal": (np.float32, (3,)), "ideal_position": (np.float32, (3,)), "wind": (np.float32, (3,)),
+             "distance": (np.float32, ()), "heading": (np.float32, ()), "inspecting": (np.bool_, ()),
+             "phase": (np.int8, ()), "collision": (np.bool_, ()), "coverage": (np.float32, ()),
+             "solve_ms": (np.float32, ()), "act_ms": (np.float32, ())}
+
+    def __init__(self, capacity: int) -> None:
+        self.n = 0
+        self.buf = {k: np.zeros((max(capacity, 16),) + shp, dt) for k, (dt, shp) in self.SPECS.items()}
+
+    def row(self) -> int:
+        if self.n == len(self.buf["t"]):
+            self.buf = {k: np.concatenate([v, np.zeros_like(v)]) for k, v in self.buf.items()}
+        self.n += 1
+        return self.n - 1
+
+    def arrays(self, every: int) -> dict[str, np.ndarray]:
+        idx = np.arange(0, self.n, every)
+        if self.n and idx[-1] != self.n - 1:
+            idx = np.append(idx, self.n - 1)
+        return {k: v[idx] for k, v in self.buf.items()}
+
+
+def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mapping[str, Any]) -> int:
+    i = rec.row()
+    b = rec.buf
+    pos, q, point = obs["position"], obs["quaternion"], obs["point"]
+    h, d = heading_and_distance(pos, q, point)
+    b["t"][i] = info["time"]
+    b["position"][i] = pos
+    b["quaternion"][i] = q
+    b["velocity_body"][i] = obs["velocity_body"]
+    b["point"][i] = point
+    b["normal"][i] = obs["normal"]
+    b["ideal_position"][i] = info["ideal_position"]
+    b["wind"][i] = info["wind"]
+    b["distance"][i] = d
+    b["heading"][i] = h
+    b["inspecting"][i] = not info["waiting_for_phase_change"]
+    b["phase"][i] = info["phase"]
+    b["collision"][i] = env.sim.in_collision
+    b["coverage"][i] = info["coverage"]
+    b["action"][i] = np.nan
+    b["solve_ms"][i] = np.nan
+    b["act_ms"][i] = np.nan
+    return i
+
+
+def _solve_ms(policy: Any) -> float:
+    stats = getattr(policy, "last_stats", None)
+    v = getattr(stats, "solve_ms", None)
+    if v is None and isinstance(stats, Mapping):
+        v = stats.get("solve_ms")
+    try:
+        return float(v) if v is not None else math.nan
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def make_env(env_options: Mapping[str, Any]) -> gym.Env:
+    """The environment of a run (options as built by :func:`~.scenarios.env_options`)."""
+    return gym.make(ENV_ID, **dict(env_options))
+
+
+def check_policy(policy: Any) -> None:
+    """A policy needs ``act(obs)`` and ``reset(seed=None)`` (see :mod:`controllers.policy`)."""
+    missing = [m for m in ("act", "reset") if not callable(getattr(policy, m, None))]
+    if missing:
+        raise ValueError(f"policy {type(policy).__name__} lacks {' and '.join(missing)}(); a policy needs "
+                         "reset(seed=None) and act(obs) -> normalised action (see controllers.policy.Policy)")
+
+
+def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
+        progress: ProgressCallback | None = None) -> RunResult:
+    """Fly ``policy`` in ``env`` for one episode of ``spec`` (seeded reset, optional time cap).
+
+    The run ends when the environment terminates (collision, leaving the working volume) or
+    truncates (mission complete, time limit), or when the simulated time reaches ``max_time``.
+    """
+    check_policy(policy)
+    u = env.unwrapped
+    t_start = time.perf_counter()
+    obs, info = env.reset(seed=spec.seed)
+    policy.reset(seed=spec.seed)
+    limit = u.time_limit if spec.max_time is None else min(u.time_limit, spec.max_time)
+    rec = _Recorder(int(limit / u.dt) + 2 if record else 0)
+    i = _record(rec, u, obs, info) if record else 0
+    termination, complete, steps = None, False, 0
+    solve: list[float] = []
+    act_ms: list[float] = []
+    next_report = t_start
+    while True:
+        t0 = time.perf_counter()
+        action = np.asarray(policy.act(obs), dtype=np.float64)
+        dt_act = (time.perf_counter() - t0) * 1000.0
+        solve.append(_solve_ms(policy))
+        act_ms.append(dt_act)
+        if record:
+            rec.buf["action"][i] = action.reshape(-1)[:4] if action.size >= 4 else np.nan
+            rec.buf["solve_ms"][i] = solve[-1]
+            rec.buf["act_ms"][i] = dt_act
+        obs, _, terminated, truncated, info = env.step(action)
+        steps += 1
+        if record:
+            i = _record(rec, u, obs, info)
+        if terminated or truncated:
+            termination = info["termination"] or ("mission_complete" if info["mission_complete"] else "time_limit")
+            complete = bool(info["mission_complete"])
+            break
+        if spec.max_time is not None and info["time"] >= spec.max_time - 1e-9:
+            termination = "max_time"
+            break
+        if progress is not None and time.perf_counter() >= next_report:
+            progress(float(info["time"]), float(limit))
+            next_report = time.perf_counter() + 0.5
+    if progress is not None:
+        progress(float(info["time"]), float(limit))
+    med, p99 = _stats_ms(np.asarray(solve))
+    amed, ap99 = _stats_ms(np.asarray(act_ms))
+    arrays: dict[str, np.ndarray] = {}
+    if record:
+        arrays = rec.arrays(spec.record_every)
+        arrays["coverage_counts"] = np.asarray(u.coverage.counts, dtype=np.int32)
+        arrays["inspected"] = np.asarray(u.mission.inspected, dtype=np.int32)
+        arrays["blade_triangles"] = np.stack([t.blade_vertices for t in u.mission.turbines]).astype(np.float32)
+        t0 = u.mission.turbines[0]
+        arrays["triangle_blade"] = np.asarray(t0.triangle_blade, dtype=np.int16)
+        arrays["triangle_face"] = np.asarray(t0.triangle_face, dtype=np.int16)
+        arrays["rotor_center"] = np.asarray(t0.rotor_center, dtype=np.float64)
+    return RunResult(spec=spec, metrics=dict(info["metrics"]), termination=termination, mission_complete=complete,
+                     steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,
+                     solve={"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99},
+                     d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays)
+
+
+def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
+            progress: ProgressCallback | None = None) -> RunResult:
+    """Build the environment of ``spec`` and fly it with ``policy`` - an object with the common
+    interface, a factory ``env -> policy``, or None for the registered ``spec.controller``."""
+    env = make_env(spec.env_options)
+    try:
+        if policy is None:
+            policy = registry.resolve(spec.controller)(env.unwrapped)
+        elif not callable(getattr(policy, "act", None)) and callable(policy):
+            policy = policy(env.unwrapped)
+        return fly(env, policy, spec, record=record, progress=progress)
+    finally:
+        env.close()
+
+
+# ------------------------------------------------------------------ files
+def save_run(result: RunResult, path: str | Path) -> Path:
+    """Write the run file atomically (see the module docstring); returns its path."""
+    path = Path(path)
+    buf = io.BytesIO()
+    meta = json.dumps(result.meta(), default=_json_default, allow_nan=True)
+    np.savez_compressed(buf, meta=np.array(meta), **result.arrays)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buf.getvalue())
+    result.path = path
+    return path
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
+
+
+def load_run(path: str | Path, *, arrays: bool = True) -> RunResult:
+    """Read a run file (``ValueError`` if it is not one)."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"]))
+            arr = {k: data[k] for k in data.files if k != "meta"} if arrays else {}
+    except Exception as exc:   # zip, key, JSON errors alike: the file is not a complete run file
+        raise ValueError(f"{path} is not a readable run file: {exc}") from None
+    if meta.get("format") != FORMAT:
+        raise ValueError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    sd = meta["spec"]
+    spec = RunSpec(**{**sd, "env_options": sd["env_options"]})
+    return RunResult(spec=spec, metrics=meta["metrics"], termination=meta["termination"],
+                     mission_complete=meta["mission_complete"], steps=meta["steps"],
+                     sim_time_s=meta["sim_time_s"], wall_time_s=meta["wall_time_s"], solve=meta["solve"],
+                     d_ref=meta["d_ref"], safety_margin=meta["safety_margin"], arrays=arr, path=path)
