@@ -91,7 +91,9 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
     before, table = _runs(out), _metric_rows(out / "results.csv")
     victim = sorted(before)[0]
     (out / "runs" / victim).unlink()
-    (out / "runs" / f".{victim}.abc.tmp.npz").write_bytes(b"partial")
+    stale = out / "runs" / f".{victim}.0123456789ab.tmp.npz"   # as a SIGKILLed write leaves it
+    stale.write_bytes(b"partial")
+    os.utime(stale, (time.time() - 3600, time.time() - 3600))
     capsys.readouterr()
     assert cli_main(argv) == 0
     assert "(1 executed, 3 resumed)" in capsys.readouterr().out

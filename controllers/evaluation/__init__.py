@@ -208,6 +208,7 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
                        record_every=record_every, custom=factories)
     out_dir = prepare_out_dir(out)
+    _remove_stale_temporaries(out_dir / "runs")
 
     done: dict[str, RunResult] = {}
     todo: list[RunSpec] = []
@@ -253,6 +254,16 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     files["md"] = write_markdown(results, ctx, out_dir / "results.md")
     return Evaluation(out=out_dir, results=results, n_ran=ctx.n_ran, n_resumed=n_resumed,
                       wall_time_s=ctx.wall_time_s, files=files)
+
+
+def _remove_stale_temporaries(runs_dir: Path, min_age_s: float = 60.0) -> None:
+    """Delete temporary files that a killed evaluation left mid-write (``.NAME.<hex>.tmp.npz``);
+    recent ones are left alone in case another evaluation is writing into the same directory."""
+    now = time.time()
+    for p in runs_dir.glob(".*.tmp.npz"):
+        with contextlib.suppress(OSError):
+            if now - p.stat().st_mtime > min_age_s:
+                p.unlink()
 
 
 def _first_seeds(results: Sequence[RunResult]) -> list[RunResult]:
