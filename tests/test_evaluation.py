@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from controllers.evaluation import OutputDirError, evaluate_policy, load_run, run_evaluation
+from controllers.evaluation.runner import save_run
 from controllers.evaluation import registry
 from controllers.evaluation.cli import main as cli_main
 from controllers.evaluation.report import CSV_COLUMNS, read_csv
@@ -100,6 +101,14 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
     after = _runs(out)
     assert set(after) == set(before) and all(after[k] == before[k] for k in before if k != victim)
     assert _metric_rows(out / "results.csv") == table   # the redone run is deterministic
+    # a run file made by other simulation/controller code is flagged when resumed
+    old = load_run(out / "runs" / victim)
+    old.code = "0ther-c0de"
+    save_run(old, out / "runs" / victim)
+    capsys.readouterr()
+    assert cli_main(argv + ["--no-figures"]) == 0
+    assert "other simulation/controller code" in capsys.readouterr().err
+    assert victim in (out / "results.md").read_text()
     # a changed option is a different run, not a resumed one
     capsys.readouterr()
     assert cli_main([a if a != "2" else "1" for a in argv] + ["--no-figures"]) == 0

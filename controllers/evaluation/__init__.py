@@ -21,7 +21,9 @@ Command line: ``wt-inspect evaluate`` (:mod:`.cli`). Layout of the output direct
 
 Resume: a run's file is written atomically when it finishes and named by a hash of everything
 that determines its outcome (scenario options, controller, wind, seed, time cap), so rerunning the
-same sweep skips the finished runs and an interrupted sweep loses only the runs in flight.
+same sweep skips the finished runs and an interrupted sweep loses only the runs in flight. Run
+files also record a fingerprint of the simulation and controller sources; resumed runs made by
+other code are flagged (stderr and results.md) rather than silently mixed in.
 """
 from __future__ import annotations
 
@@ -40,7 +42,7 @@ from . import registry
 from .backends import BACKENDS, check_jobs, run_specs
 from .registry import CONTROLLERS
 from .report import ReportContext, write_csv, write_markdown
-from .runner import RunResult, RunSpec, execute, load_run, make_spec, save_run
+from .runner import RunResult, RunSpec, code_fingerprint, execute, load_run, make_spec, save_run
 from .scenarios import SCENARIOS, WIND_TYPES, SweepSpec, env_options, get_scenario
 
 __all__ = ["evaluate_policy", "run_evaluation", "Evaluation", "RunResult", "RunSpec", "SCENARIOS", "CONTROLLERS",
@@ -230,11 +232,22 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         if on_result is not None:
             on_result(res)
 
-    if progress and n_resumed:
-        print(f"resuming: {n_resumed} of {len(specs)} runs already finished in {out_dir / 'runs'}", file=sys.stderr)
+    notes = []
+    if n_resumed:
+        if progress:
+            print(f"resuming: {n_resumed} of {len(specs)} runs already finished in {out_dir / 'runs'}",
+                  file=sys.stderr)
+        code = code_fingerprint()
+        stale = sorted(r.spec.filename for r in done.values() if r.code != code)
+        if stale:
+            msg = (f"{len(stale)} resumed run(s) were made by other simulation/controller code than this one "
+                   f"(code {code}); their numbers may differ from a fresh run - use --rerun to redo them: "
+                   + ", ".join(stale))
+            print(f"warning: {msg}", file=sys.stderr)
+            notes.append(f"Warning: {msg}")
     ctx = ReportContext(scenario=scenario, wind_type=wind_type, backend=backend, jobs=jobs,
                         n_planned=len(specs), n_resumed=n_resumed,
-                        command=command or "", notes=[])
+                        command=command or "", notes=notes)
     try:
         if todo:
             run_specs(backend, todo, finished, jobs=jobs, address=address, factories=factories, progress=progress)

@@ -21,7 +21,9 @@ key                  shape/dtype  meaning
 ``ideal_position``   (N,3) f4     the stand-off pose the reference asks for
 ``wind``             (N,3) f4     air velocity at the drone [m/s]
 ``distance``         (N,) f4      horizontal distance |a_xy| to the inspection point [m]
-``heading``          (N,) f4      the paper's heading function h (CM = its mean)
+``heading``          (N,) f4      heading function h of the gimbal camera (horizontal part of
+                                  body x, normalised): CM is its mean over inspecting samples
+``heading_body``     (N,) f4      the paper's printed full-attitude h ((R e_x) . a_xy / |a_xy|)
 ``inspecting``       (N,) bool    sample counts for SM/CM (False while waiting for the rotor)
 ``phase``            (N,) i1      mission phase (1, 2)
 ``collision``        (N,) bool    in contact with the turbine or the ground
@@ -65,12 +67,29 @@ ENV_ID = "WindTurbineInspection-v0"   # the task comes from the options
 # Metric columns of a run (results.csv): name -> key of InspectionMetrics.
 METRIC_COLUMNS = {
     "coverage": "coverage", "safety": "safety_sm", "centering": "centering_cm",
+    "centering_body": "centering_body_cm",
     "mean_distance": "mean_distance_m", "min_distance": "min_distance_m", "max_distance": "max_distance_m",
     "rms_distance_error": "rms_distance_error_m", "collisions": "collisions", "flight_time": "flight_time_s",
     "path_length": "path_length_m", "mean_heading_error_deg": "mean_heading_error_deg",
 }
 
 ProgressCallback = Callable[[float, float], None]
+
+
+def code_fingerprint() -> str:
+    """Hash of the simulation and controller sources (``wt_inspect_env`` and ``controllers``
+    without this harness's reporting code). Stored in every run file: a resumed run made by other
+    code is reported (results.md, stderr), since its numbers may not be comparable."""
+    import controllers
+    roots = [Path(wt_inspect_env.__file__).parent, Path(controllers.__file__).parent]
+    h = hashlib.sha256()
+    for root in roots:
+        for f in sorted(root.rglob("*.py")):
+            if "evaluation" in f.relative_to(root).parts:
+                continue
+            h.update(str(f.relative_to(root.parent)).encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:12]
 
 
 @dataclass(frozen=True)
@@ -144,6 +163,7 @@ class RunResult:
     safety_margin: float
     arrays: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     path: Path | None = None
+    code: str = ""               # code_fingerprint() of the process that made the run
 
     def row(self) -> dict[str, Any]:
         """One row of results.csv (fractions in [0, 1], distances in m, times in s / ms)."""
@@ -161,7 +181,7 @@ class RunResult:
         return {"format": FORMAT, "spec": self.spec.to_dict(), "metrics": self.metrics,
                 "termination": self.termination, "mission_complete": self.mission_complete,
                 "steps": self.steps, "sim_time_s": self.sim_time_s, "wall_time_s": self.wall_time_s,
-                "solve": self.solve, "d_ref": self.d_ref, "safety_margin": self.safety_margin}
+                "solve": self.solve, "d_ref": self.d_ref, "safety_margin": self.safety_margin, "code": self.code}
 
 
 def _stats_ms(values: np.ndarray) -> tuple[float, float]:
@@ -178,7 +198,8 @@ class _Recorder:
     SPECS = {"t": (np.float64, ()), "position": (np.float32, (3,)), "quaternion": (np.float32, (4,)),
              "velocity_body": (np.float32, (3,)), "action": (np.float32, (4,)), "point": (np.float32, (3,)),
              "normal": (np.float32, (3,)), "ideal_position": (np.float32, (3,)), "wind": (np.float32, (3,)),
-             "distance": (np.float32, ()), "heading": (np.float32, ()), "inspecting": (np.bool_, ()),
+             "distance": (np.float32, ()), "heading": (np.float32, ()), "heading_body": (np.float32, ()),
+             "inspecting": (np.bool_, ()),
              "phase": (np.int8, ()), "collision": (np.bool_, ()), "coverage": (np.float32, ()),
              "solve_ms": (np.float32, ()), "act_ms": (np.float32, ())}
 
@@ -203,7 +224,11 @@ def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mappi
     i = rec.row()
     b = rec.buf
     pos, q, point = obs["position"], obs["quaternion"], obs["point"]
-    h, d = heading_and_distance(pos, q, point)
+    h_body, d = heading_and_distance(pos, q, point)
+    qx, qy, qz, qw = (float(v) for v in q)
+    qq = qx * qx + qy * qy + qz * qz + qw * qw
+    bxy = math.hypot(1.0 - 2.0 * (qy * qy + qz * qz) / qq, 2.0 * (qx * qy + qw * qz) / qq)
+    h = h_body / bxy if d > 1e-9 and bxy > 1e-9 else 0.0   # the gimbal camera's heading (CM's h)
     b["t"][i] = info["time"]
     b["position"][i] = pos
     b["quaternion"][i] = q
@@ -214,6 +239,7 @@ def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mappi
     b["wind"][i] = info["wind"]
     b["distance"][i] = d
     b["heading"][i] = h
+    b["heading_body"][i] = h_body
     b["inspecting"][i] = not info["waiting_for_phase_change"]
     b["phase"][i] = info["phase"]
     b["collision"][i] = env.sim.in_collision
@@ -308,7 +334,8 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
     return RunResult(spec=spec, metrics=dict(info["metrics"]), termination=termination, mission_complete=complete,
                      steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,
                      solve={"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99},
-                     d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays)
+                     d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays,
+                     code=code_fingerprint())
 
 
 def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
@@ -363,4 +390,5 @@ def load_run(path: str | Path, *, arrays: bool = True) -> RunResult:
     return RunResult(spec=spec, metrics=meta["metrics"], termination=meta["termination"],
                      mission_complete=meta["mission_complete"], steps=meta["steps"],
                      sim_time_s=meta["sim_time_s"], wall_time_s=meta["wall_time_s"], solve=meta["solve"],
-                     d_ref=meta["d_ref"], safety_margin=meta["safety_margin"], arrays=arr, path=path)
+                     d_ref=meta["d_ref"], safety_margin=meta["safety_margin"], arrays=arr, path=path,
+                     code=meta.get("code", ""))
