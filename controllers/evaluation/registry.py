@@ -109,7 +109,12 @@ def fingerprint(name: str) -> str:
     sb3 = parse_sb3(name)
     if sb3 is None:
         return name
-    digest = hashlib.sha256(Path(sb3[1]).read_bytes()).hexdigest()[:16]
+    model = Path(sb3[1])
+    h = hashlib.sha256(model.read_bytes())
+    sidecar = model.with_suffix(".json")   # agents' normalisation statistics live beside the model
+    if sidecar.is_file():
+        h.update(sidecar.read_bytes())
+    digest = h.hexdigest()[:16]
     return f"{sb3[0]}:sha256={digest}"
 
 
