@@ -122,8 +122,9 @@ def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
            "--no-progress", "--no-figures"]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.time() + 60
-    while time.time() < deadline and not list((out / "runs").glob("*.npz")):
+    while time.time() < deadline and not list((out / "runs").glob("*.npz")) and proc.poll() is None:
         time.sleep(0.05)
+    assert proc.poll() is None, proc.communicate()
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err

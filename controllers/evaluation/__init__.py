@@ -252,6 +252,13 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         if todo:
             run_specs(backend, todo, finished, jobs=jobs, address=address, factories=factories, progress=progress)
     except BaseException:
+        # An interrupt can land between a run file's rename and its bookkeeping: the files on disk
+        # are the truth (they are what a rerun resumes from).
+        for s in specs:
+            path = out_dir / "runs" / s.filename
+            if s.filename not in done and path.exists():
+                with contextlib.suppress(ValueError):
+                    done[s.filename] = load_run(path, arrays=False)
         results = [done[s.filename] for s in specs if s.filename in done]
         if results:
             ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
