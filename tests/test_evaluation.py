@@ -49,7 +49,8 @@ class HoverPolicy(Policy):
 
 
 def _runs(out: Path) -> dict[str, float]:
-    return {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.npz")}
+    """Finished run files (pathlib's glob also matches the hidden temporaries of writes in flight)."""
+    return {p.name: p.stat().st_mtime_ns for p in (out / "runs").glob("*.npz") if not p.name.startswith(".")}
 
 
 def _metric_rows(path: Path) -> dict[tuple, dict]:
@@ -120,13 +121,16 @@ def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
     cmd = [sys.executable, "-m", "wt_inspect_env.cli", "evaluate", "--scenario", "surface", "--controllers",
            "vtnmpc,nmpc,pampc", "--winds", "0,4", "--max-time", "3", "--out", str(out), "--jobs", "2",
            "--no-progress", "--no-figures"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 60
-    while time.time() < deadline and not list((out / "runs").glob("*.npz")) and proc.poll() is None:
-        time.sleep(0.05)
-    assert proc.poll() is None, proc.communicate()
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    log = tmp_path / "log.txt"
+    with open(log, "w") as f:   # a file, not a pipe: a stray worker holding a pipe open cannot block us
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, text=True)
+        deadline = time.time() + 60
+        while time.time() < deadline and proc.poll() is None and not ((out / "runs").is_dir() and _runs(out)):
+            time.sleep(0.05)
+        assert proc.poll() is None, log.read_text()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(timeout=60)
+    err = log.read_text()
     assert proc.returncode == 130, err
     assert "interrupted" in err
     kept = _runs(out)
