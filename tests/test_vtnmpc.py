@@ -90,6 +90,53 @@ def test_residual_signs_away_from_the_ideal_pose():
     assert h == pytest.approx(np.cos(np.deg2rad(10)), abs=1e-7)   # eps guard in ||a_xy||
 
 
+def test_camera_heading_ignores_tilt_and_equals_the_env_camera_heading():
+    """heading_model="camera": the gimbal camera's yaw-only heading (the metric's h), unchanged by
+    roll and pitch, and equal to the environment's camera heading for any attitude."""
+    cfg = VTNMPCConfig(heading_model="camera")
+    point, normal = np.array([0.0, 0.0, 10.0]), np.array([1.0, 0.0, 0.0])
+    base = ideal_state(point, normal, D_REF)
+    params = vtnmpc_parameters(base, point, normal[:2], np.zeros(3))
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        x = base.copy()
+        x[:3] += rng.normal(0.0, 1.0, 3)
+        q = rng.normal(size=4)
+        x[6:10] = q / np.linalg.norm(q)
+        h_cam = float(np.asarray(visual_terms(x, params, 1e-12, "camera")).ravel()[0])
+        R = quat_to_rotmat_np(x[6:10])
+        fwd = R[:2, 0] / np.linalg.norm(R[:2, 0])
+        a = point[:2] - x[:2]
+        assert h_cam == pytest.approx(float(fwd @ a / np.linalg.norm(a)), abs=1e-6)
+    # pitched by 10 deg and rolled by 20 deg at the ideal pose: still h = 1 (body model: < 1)
+    tilted = base.copy()
+    q_tilt = _qmul(np.array([0.0, np.sin(np.deg2rad(5)), 0.0, np.cos(np.deg2rad(5))]),
+                   np.array([np.sin(np.deg2rad(10)), 0.0, 0.0, np.cos(np.deg2rad(10))]))
+    tilted[6:10] = np.asarray(ca.DM(_qmul(base[6:10], q_tilt))).ravel()
+    h_cam = float(np.asarray(visual_terms(tilted, params, cfg.norm_eps, "camera")).ravel()[0])
+    h_body = float(np.asarray(visual_terms(tilted, params, cfg.norm_eps, "body")).ravel()[0])
+    assert h_cam == pytest.approx(1.0, abs=1e-6) and h_body < 0.99
+    # chord heading residual: |f - a_hat| = 2 sin(err / 2), reference 0; the rest unchanged
+    stage_paper, _ = residual_functions(VTNMPCConfig(heading_model="camera", norm_eps=1e-12))
+    stage_chord, _ = residual_functions(VTNMPCConfig(heading_model="camera", norm_eps=1e-12,
+                                                     heading_residual="chord"))
+    yawed = base.copy()
+    err = np.deg2rad(12.0)
+    yawed[6:10] = np.asarray(ca.DM(_qmul(base[6:10], np.array([0, 0, np.sin(err / 2), np.cos(err / 2)])))).ravel()
+    u0 = VTNMPCConfig().hover_input
+    r_p = np.asarray(stage_paper(yawed, u0, params)).ravel()
+    r_c = np.asarray(stage_chord(yawed, u0, params)).ravel()
+    assert r_p[0] == pytest.approx(np.cos(err) - 1.0, abs=1e-9)
+    assert r_c[0] == pytest.approx(2 * np.sin(err / 2), abs=1e-5)
+    np.testing.assert_allclose(r_c[1:], r_p[1:])
+    with pytest.raises(ValueError, match="heading_residual"):
+        VTNMPCConfig(heading_residual="angle")
+    with pytest.raises(ValueError, match="heading_model"):
+        VTNMPCConfig(heading_model="gimbal")
+    with pytest.raises(ValueError, match="observer_max_accel"):
+        VTNMPCConfig(observer_max_accel=10.0)
+
+
 def _qmul(a, b):
     from wt_inspect_env.dynamics import quat_product
     return quat_product(a, b)

@@ -77,7 +77,8 @@ class WindTurbineInspectionEnv(gym.Env):
             d_ref=cfg.standoff, safety_margin=cfg.safety_margin, pixel_ifov_rad=cfg.camera.ifov_rad))
         self.reference = InspectionReference(
             self.mission.points, self.mission.normals, self.mission.s, self.mission.phase,
-            ReferenceConfig(speed=cfg.reference_speed, mode=cfg.reference_mode, standoff=cfg.standoff))
+            ReferenceConfig(speed=cfg.reference_speed, mode=cfg.reference_mode, standoff=cfg.standoff,
+                            lag_threshold=cfg.reference_lag, stop_threshold=cfg.reference_stop))
         self.time_limit = cfg.time_limit_s or (1.5 * self.reference.nominal_duration + 30.0)
         lo, hi = self.mission.working_volume(cfg.working_margin)
         self._vol_lo, self._vol_hi = lo, hi

@@ -71,6 +71,11 @@ class EnvConfig:
     drone: preset name or :class:`QuadrotorParams`.
     reference_speed / reference_mode / standoff: the inspection point's nominal speed [m/s], its
         timing (``closed_loop`` waits for a lagging drone, ``open_loop`` is the paper's), d_ref [m].
+    reference_lag / reference_stop: in ``closed_loop`` timing the point slows once the drone is
+        this far [m] from its stand-off pose and stops at the second distance; default standoff / 7
+        and 2 standoff / 7 (1 m and 2 m at the paper's 7 m; 7 cm and 14 cm for the 0.5 m lab
+        stand-off, where fixed metres would let the point run away from a drone that is already
+        blown out of its 0.1 m band).
     safety_margin: SM band [m]. camera_hz: coverage frames per second (a real inspection camera
         shoots a few frames per second; 10 Hz keeps the env fast). ctrl_hz / physics_hz: command and
         physics rates. time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
@@ -97,6 +102,8 @@ class EnvConfig:
     reference_speed: float = 0.7
     reference_mode: str = "closed_loop"
     standoff: float = 7.0
+    reference_lag: float | None = None
+    reference_stop: float | None = None
     safety_margin: float = 1.0
     planner_spacing: float = 0.1
     planner: Any = None
@@ -129,6 +136,15 @@ class EnvConfig:
         check_positive("reference_speed", self.reference_speed)
         check_choice("reference_mode", self.reference_mode, REFERENCE_MODES)
         check_positive("standoff", self.standoff)
+        if self.reference_lag is None:
+            put("reference_lag", self.standoff / 7.0)
+        if self.reference_stop is None:
+            put("reference_stop", 2.0 * self.reference_lag)
+        check_positive("reference_lag", self.reference_lag)
+        check_positive("reference_stop", self.reference_stop)
+        if self.reference_stop <= self.reference_lag:
+            raise ValueError(f"reference_stop must exceed reference_lag ({self.reference_lag}), "
+                             f"got {self.reference_stop!r}")
         check_positive("safety_margin", self.safety_margin)
         check_positive("planner_spacing", self.planner_spacing)
         check_finite("rotor_turn_deg", self.rotor_turn_deg)

@@ -31,6 +31,7 @@ from .runner import RunResult  # noqa: E402
 
 MAX_LINE_POINTS = 6000   # per curve: 110k samples draw no better than 6k and cost 20x the time
 COLORS = {"nmpc": "tab:orange", "pampc": "tab:green", "vtnmpc": "tab:blue", "vtnmpc-dob": "tab:purple",
+          "vtnmpc-plus": "tab:red",
           "vtnmpc-later": "tab:cyan"}
 
 

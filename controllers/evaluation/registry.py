@@ -10,7 +10,9 @@ Names:
 
 * ``vtnmpc`` - the paper's VT-NMPC with the paper's weights (no disturbance observer, as in the
   paper); ``vtnmpc-later`` - the authors' later tuning file; ``vtnmpc-dob`` - the paper's weights
-  plus the optional disturbance observer of :class:`~controllers.vtnmpc.VTNMPCConfig`.
+  plus the optional disturbance observer of :class:`~controllers.vtnmpc.VTNMPCConfig`;
+  ``vtnmpc-plus`` - VT-NMPC+ (:data:`~controllers.vtnmpc.VTNMPC_PLUS`): the observer, the gimbal
+  camera's heading and the chord heading residual (not in the paper; the wind-robust variant).
 * ``nmpc`` - the conventional NMPC baseline; ``pampc`` - the perception-aware MPC baseline (its
   projection guard ``image_plane_guard`` is scaled with d_ref, 0.5 m at the paper's 7 m, so the
   guard distorts the projection by the same relative amount in the lab scenario).
@@ -30,12 +32,18 @@ SB3_ALGOS = ("ppo", "sac", "td3", "a2c", "ddpg")
 
 # Names as the paper's tables print them (keys without an entry print as they are).
 DISPLAY_NAMES = {"vtnmpc": "VT-NMPC", "vtnmpc-later": "VT-NMPC (later tuning)",
-                 "vtnmpc-dob": "VT-NMPC + observer", "nmpc": "NMPC", "pampc": "PAMPC"}
+                 "vtnmpc-dob": "VT-NMPC + observer",
+                 "vtnmpc-plus": "VT-NMPC+", "nmpc": "NMPC", "pampc": "PAMPC"}
 
 
 def _vtnmpc(env: Any, **extra: Any) -> Any:
     from controllers.vtnmpc import VTNMPCPolicy
     return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, dt=env.dt, **extra)
+
+
+def _vtnmpc_plus() -> dict[str, Any]:
+    from controllers.vtnmpc import VTNMPC_PLUS
+    return dict(VTNMPC_PLUS)
 
 
 def _nmpc(env: Any) -> Any:
@@ -65,6 +73,8 @@ CONTROLLERS: dict[str, ControllerEntry] = {e.name: e for e in (
                     "VT-NMPC with the authors' later tuning file"),
     ControllerEntry("vtnmpc-dob", lambda env: _vtnmpc(env, disturbance_observer=True),
                     "VT-NMPC, paper weights + disturbance observer (not in the paper)"),
+    ControllerEntry("vtnmpc-plus", lambda env: _vtnmpc(env, **_vtnmpc_plus()),
+                    "VT-NMPC+: observer + gimbal-camera heading + chord heading residual (not in the paper)"),
     ControllerEntry("nmpc", _nmpc, "conventional NMPC baseline (stand-off position + yaw tracking)"),
     ControllerEntry("pampc", _pampc, "perception-aware MPC baseline (Falanga et al. 2018)"),
 )}
