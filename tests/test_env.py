@@ -178,6 +178,8 @@ def test_bad_actions_raise_naming_the_action(bad):
     (dict(drone="ingenuity"), "drone preset"),
     (dict(standoff=0.0), "standoff"),
     (dict(turbine={"blade_length": -3}), "blade_length"),
+    (dict(start_progress=1.0), "start_progress"),
+    (dict(reference_lag=2.0, reference_stop=1.0), "reference_stop"),
 ])
 def test_bad_options_raise_naming_the_field(kw, field):
     with pytest.raises(ValueError, match=field):
@@ -219,3 +221,28 @@ def test_seed_option_makes_the_first_reset_reproducible():
     with pytest.raises(ValueError, match="seed"):
         make(seed=-1)
     a.close(); b.close()
+
+
+def test_start_progress_starts_on_the_path_at_the_ideal_pose():
+    """Random start along the first phase: the drone starts at the stand-off pose of a path point
+    (distance d_ref, facing it), the progress matches, different seeds start elsewhere."""
+    env = gym.make("WindTurbineInspection-Blade-v0", wind="none", start_progress=0.9)
+    u = env.unwrapped
+    starts = []
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        a = obs["point"] - obs["position"]
+        assert np.hypot(a[0], a[1]) == pytest.approx(u.config.standoff, abs=1e-3)
+        assert 0.0 <= float(obs["progress"][0]) <= 0.9
+        starts.append(float(obs["progress"][0]))
+    assert len(set(np.round(starts, 6))) == 6 and max(starts) > 0.3
+    obs0, _ = make(task="blade", wind="none").reset(seed=0)
+    assert float(obs0["progress"][0]) == 0.0
+    env.close()
+
+
+def test_reference_thresholds_scale_with_the_standoff():
+    env = make(standoff=10.5)
+    assert env.unwrapped.reference.config.lag_threshold == pytest.approx(1.5)
+    assert env.unwrapped.reference.config.stop_threshold == pytest.approx(3.0)
+    env.close()

@@ -106,7 +106,9 @@ class WindTurbineInspectionEnv(gym.Env):
             raise ValueError(f"reset options are not supported, got {options!r}")
         self.wind.reset(int(self.np_random.integers(2**63 - 1)))
         self._set_phase(0)
-        self._sample = self.reference.reset()
+        frac = (float(self.np_random.uniform(0.0, self.config.start_progress))
+                if self.config.start_progress > 0 else 0.0)
+        self._sample = self.reference.reset(frac)
         start = self._sample.ideal_position.copy()
         if self.config.start_noise > 0:
             start = start + self.np_random.normal(0.0, self.config.start_noise, 3)

@@ -81,6 +81,10 @@ class EnvConfig:
         physics rates. time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
     start_noise: standard deviation [m] of a random offset of the start position from the ideal
         stand-off pose (0 for reproducible MPC evaluation; RL training uses > 0).
+    start_progress: each episode starts at a uniformly random point of the first ``start_progress``
+        of the first phase's path (0: at its start; RL training on the blade task uses 0.9 so
+        that short training episodes also see the transitions round the blade edges). Coverage
+        and metrics count from the start point.
     working_margin: the working volume is the turbine's bounding box grown by this [m].
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
@@ -115,6 +119,7 @@ class EnvConfig:
     camera_hz: float = 10.0
     time_limit_s: float | None = None
     start_noise: float = 0.0
+    start_progress: float = 0.0
     working_margin: float = 30.0
     occlusion: bool = True
     end_hold_s: float = 2.0
@@ -160,6 +165,9 @@ class EnvConfig:
         if self.time_limit_s is not None:
             check_positive("time_limit_s", self.time_limit_s)
         check_positive("start_noise", self.start_noise, allow_zero=True)
+        check_positive("start_progress", self.start_progress, allow_zero=True)
+        if self.start_progress >= 1.0:
+            raise ValueError(f"start_progress must be below 1, got {self.start_progress!r}")
         check_positive("working_margin", self.working_margin)
         check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0):

@@ -203,10 +203,15 @@ class InspectionReference:
         return self.total_length / self.config.speed + hold * (len(self._runs) - 1)
 
     # ------------------------------------------------------------------------------------------
-    def reset(self) -> ReferenceSample:
-        """Back to the start of the path; returns the initial sample."""
+    def reset(self, start_fraction: float = 0.0) -> ReferenceSample:
+        """Back to the start of the path - or ``start_fraction`` (in [0, 1)) of the way along the
+        first phase's path, so that RL training sees every part of a long path (transitions round
+        blade edges, the tip) without flying all that precedes it; returns the initial sample."""
+        f = check_positive("reference start_fraction", start_fraction, allow_zero=True)
+        if f >= 1.0:
+            raise ValueError(f"reference start_fraction must be below 1, got {start_fraction!r}")
         self._run = 0
-        self._tau = 0.0
+        self._tau = f * self._runs[0].length
         self._time = 0.0
         self._holding = False
         self._hold_elapsed = 0.0
