@@ -5,6 +5,8 @@ Compares on the same VT-NMPC problem (N = 30, dt = 0.01 s):
 * ``rti_compiled``   - real-time iteration, QP data from generated + compiled C, HPIPM;
 * ``rti_uncompiled`` - the same, QP data evaluated by CasADi's SX virtual machine;
 * ``ipopt``          - CasADi + IPOPT solved to convergence, warm-started (primal and dual);
+* ``vtnmpc_plus`` - VT-NMPC+ (:data:`controllers.vtnmpc.VTNMPC_PLUS`: observer, camera heading,
+  chord heading residual), compiled RTI; the observer update is inside the timed step;
 * ``nmpc``, ``pampc`` - the paper's baselines (:mod:`controllers.nmpc`, :mod:`controllers.pampc`),
   compiled RTI with their own stage lengths (PAMPC: 0.1 s stages, commanded every 0.01 s), so the
   paper's ordering of cost per step (NMPC < VT-NMPC < PAMPC) is measured, not assumed.
@@ -241,7 +243,7 @@ def run_benchmark(steps: int = 500, warmup: int = 20, horizon: int = 30,
     from .nmpc import NMPCConfig, NMPCPolicy
     from .pampc import PAMPCConfig, PAMPCPolicy
     from .rti import RTIOptions
-    from .vtnmpc import VTNMPCConfig, VTNMPCPolicy
+    from .vtnmpc import VTNMPC_PLUS, VTNMPCConfig, VTNMPCPolicy
 
     # the paper's baselines (compiled RTI, their own weights and stage lengths, same N)
     BASELINES = {"nmpc": (NMPCConfig, NMPCPolicy), "pampc": (PAMPCConfig, PAMPCPolicy)}
@@ -268,6 +270,8 @@ def run_benchmark(steps: int = 500, warmup: int = 20, horizon: int = 30,
                                solver=RTIOptions(qp_mode="speed_abs", compiled=False))
         elif name == "ipopt":
             cfg = VTNMPCConfig(params=params, horizon=horizon, backend="ipopt")
+        elif name == "vtnmpc_plus":
+            cfg = VTNMPCConfig(params=params, horizon=horizon, **VTNMPC_PLUS)
         elif name in BASELINES:
             cfg = BASELINES[name][0](params=params, horizon=horizon)
         else:
@@ -307,9 +311,9 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps")
     parser.add_argument("--horizon", type=int, default=30)
-    parser.add_argument("--solvers", default="rti_compiled,rti_uncompiled,ipopt,nmpc,pampc",
+    parser.add_argument("--solvers", default="rti_compiled,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
                         help="comma-separated subset of rti_compiled, rti_uncompiled, ipopt "
-                             "(VT-NMPC) and nmpc, pampc (the baselines, compiled RTI)")
+                             "(VT-NMPC), vtnmpc_plus (VT-NMPC+) and nmpc, pampc (the baselines, compiled RTI)")
     args = parser.parse_args(argv)
     try:
         if args.steps < 1 or args.warmup < 0:
