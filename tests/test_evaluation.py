@@ -82,7 +82,7 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
         assert m.centering_cm == pytest.approx(r["centering"], abs=1e-5)
         assert m.coverage == pytest.approx(r["coverage"])
     md = (out / "results.md").read_text()
-    assert "| metric | NMPC | paper | VT-NMPC | paper |" in md and "Safety (SM) (±1 m)" in md
+    assert "| metric | NMPC | VT-NMPC |" in md and "Safety (SM) (±1 m)" in md   # no paper numbers: no column
     pngs = sorted(p.name for p in out.glob("*.png"))
     assert pngs == sorted(f"{k}_w{w}.png" for k in ("trajectories", "distance", "centering", "coverage")
                           for w in (0, 4))
@@ -271,3 +271,9 @@ def test_local_and_ray_backends_agree(tmp_path):
             np.testing.assert_array_equal(a.arrays[k], b.arrays[k])
     # Dryden turbulence is seeded: the two seeds differ, so agreeing is not trivial
     assert rows_l[("vtnmpc", 4.0, 0.0)] != rows_l[("vtnmpc", 4.0, 1.0)]
+
+
+def test_display_names():
+    from controllers.evaluation.registry import display_name
+    assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"
+    assert display_name("vtnmpc-plus") == "VT-NMPC+" and display_name("custom") == "custom"

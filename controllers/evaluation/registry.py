@@ -156,4 +156,8 @@ def resolve(name: str) -> PolicyFactory:
 
 
 def display_name(name: str) -> str:
+    """Table name: the paper's spelling for built-ins, ``PPO (model stem)`` for a saved model."""
+    sb3 = parse_sb3(name)
+    if sb3 is not None:
+        return f"{sb3[0].upper()} ({Path(sb3[1]).stem})"
     return DISPLAY_NAMES.get(name, name)

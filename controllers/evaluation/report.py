@@ -23,7 +23,7 @@ from wt_inspect_env.atomic_io import write_text_atomic
 
 from .registry import display_name
 from .runner import RunResult
-from .scenarios import get_scenario, paper_numbers
+from .scenarios import PAPER_RESULTS, get_scenario, paper_numbers
 
 CSV_COLUMNS = ("scenario", "controller", "wind", "seed", "coverage", "safety", "centering", "centering_body",
                "mean_distance",
@@ -159,6 +159,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                   "resume).", ""]
     controllers = order_controllers(r["controller"] for r in rows)
     winds = sorted({r["wind"] for r in rows})
+    # a "paper" column only beside controllers the paper reports on in this scenario
+    paper_cols = {c: any(paper_numbers(sc.name, w, c) for w in PAPER_RESULTS.get(sc.name, {})) for c in controllers}
     for wind in winds:
         at = [r for r in rows if r["wind"] == wind]
         seeds = sorted({int(r["seed"]) for r in at})
@@ -169,8 +171,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
         for c in controllers:
             if not any(r["controller"] == c for r in at):
                 continue
-            header += [display_name(c), "paper"]
-            rule += ["---:", "---:"]
+            header += [display_name(c), "paper"] if paper_cols[c] else [display_name(c)]
+            rule += ["---:", "---:"] if paper_cols[c] else ["---:"]
         lines += ["| " + " | ".join(header) + " |", "|" + "|".join(rule) + "|"]
         for label, col, fmt, how in ROWS:
             label_txt = label + (f" (±{results[0].safety_margin:g} m)" if col == "safety" else "")
@@ -181,7 +183,7 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                     continue
                 ours = _aggregate(runs, col, how)
                 paper = paper_numbers(sc.name, wind, c).get(col)
-                cells += [fmt(ours), fmt(paper) if paper is not None else "-"]
+                cells += [fmt(ours)] + ([fmt(paper) if paper is not None else "-"] if paper_cols[c] else [])
             lines.append("| " + " | ".join(cells) + " |")
         ends = []
         for c in controllers:
