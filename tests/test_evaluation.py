@@ -119,8 +119,8 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
 def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
     out = tmp_path / "ev"
     cmd = [sys.executable, "-m", "wt_inspect_env.cli", "evaluate", "--scenario", "surface", "--controllers",
-           "vtnmpc,nmpc,pampc", "--winds", "0,4", "--max-time", "3", "--out", str(out), "--jobs", "2",
-           "--no-progress", "--no-figures"]
+           "vtnmpc,nmpc,pampc", "--winds", "0,4", "--max-time", "15", "--out", str(out), "--jobs", "2",
+           "--no-progress", "--no-figures"]   # 15 s: each run ~1.5 s, so the interrupt lands mid-sweep
     log = tmp_path / "log.txt"
     with open(log, "w") as f:   # a file, not a pipe: a stray worker holding a pipe open cannot block us
         proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, text=True)
