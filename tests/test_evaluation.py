@@ -123,7 +123,10 @@ def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
            "--no-progress", "--no-figures"]   # 15 s: each run ~1.5 s, so the interrupt lands mid-sweep
     log = tmp_path / "log.txt"
     with open(log, "w") as f:   # a file, not a pipe: a stray worker holding a pipe open cannot block us
-        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, text=True)
+        # SIG_DFL in the child: a test run from a background job (nohup ... &) inherits an ignored SIGINT,
+        # and Python then never raises KeyboardInterrupt
+        proc = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, text=True,
+                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
         deadline = time.time() + 60
         while time.time() < deadline and proc.poll() is None and not ((out / "runs").is_dir() and _runs(out)):
             time.sleep(0.05)
