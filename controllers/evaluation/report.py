@@ -160,7 +160,9 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     controllers = order_controllers(r["controller"] for r in rows)
     winds = sorted({r["wind"] for r in rows})
     # a "paper" column only beside controllers the paper reports on in this scenario
-    paper_cols = {c: any(paper_numbers(sc.name, w, c) for w in PAPER_RESULTS.get(sc.name, {})) for c in controllers}
+    # (and only in the paper's wind: its numbers are for the gust, not for Dryden turbulence)
+    paper_cols = {c: ctx.wind_type == "gust" and any(paper_numbers(sc.name, w, c) for w in PAPER_RESULTS.get(sc.name, {}))
+                  for c in controllers}
     for wind in winds:
         at = [r for r in rows if r["wind"] == wind]
         seeds = sorted({int(r["seed"]) for r in at})
@@ -207,9 +209,11 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                  "lab": "the paper's Table \"Statistical analysis of the experimental results\" (mean of three "
                         "real flights with a 4 m/s blowing tunnel; this is a simulation of that setup)"}
     lines += ["", "## How these numbers were made", "",
-              f"- Paper columns: {paper_src.get(sc.name, 'the paper has no numbers for this scenario')}. "
-              "Paper solve times are per solve on a Jetson TX2 (ACADO + qpOASES); ours are the policy's own "
-              "solve time per control step on the machine below.",
+              (f"- Paper columns: {paper_src[sc.name]}. Paper solve times are per solve on a Jetson TX2 "
+               "(ACADO + qpOASES); ours are the policy's own solve time per control step on the machine below."
+               if any(paper_cols.values()) else
+               "- No paper columns: the paper has no numbers for this scenario and wind. Solve times are the "
+               "policy's own time per control step on the machine below."),
               "- Metrics (wt_inspect_env.metrics): coverage = share of the mission's blade triangles seen at least "
               "once (camera frames at 10 Hz, occlusion tested); SM = share of inspecting samples with "
               "|d - d_ref| below the margin, d the horizontal distance to the inspection point; CM = mean heading "
