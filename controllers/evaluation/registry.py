@@ -41,9 +41,9 @@ def _vtnmpc(env: Any, **extra: Any) -> Any:
     return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, dt=env.dt, **extra)
 
 
-def _vtnmpc_plus() -> dict[str, Any]:
+def _vtnmpc_plus(env: Any) -> Any:
     from controllers.vtnmpc import VTNMPC_PLUS
-    return dict(VTNMPC_PLUS)
+    return _vtnmpc(env, **VTNMPC_PLUS)
 
 
 def _nmpc(env: Any) -> Any:
@@ -73,7 +73,7 @@ CONTROLLERS: dict[str, ControllerEntry] = {e.name: e for e in (
                     "VT-NMPC with the authors' later tuning file"),
     ControllerEntry("vtnmpc-dob", lambda env: _vtnmpc(env, disturbance_observer=True),
                     "VT-NMPC, paper weights + disturbance observer (not in the paper)"),
-    ControllerEntry("vtnmpc-plus", lambda env: _vtnmpc(env, **_vtnmpc_plus()),
+    ControllerEntry("vtnmpc-plus", _vtnmpc_plus,
                     "VT-NMPC+: observer + gimbal-camera heading + chord heading residual (not in the paper)"),
     ControllerEntry("nmpc", _nmpc, "conventional NMPC baseline (stand-off position + yaw tracking)"),
     ControllerEntry("pampc", _pampc, "perception-aware MPC baseline (Falanga et al. 2018)"),
