@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from wt_inspect_env.planner import (HeldKarp, PlannerConfig, cluster_surfaces, plan_inspection, solve_tour,
@@ -354,7 +354,7 @@ def test_other_turbines_and_options(spec_kw, cfg_kw, plan):
     ("spacing", 1e-5), ("spacing", 50.0), ("clearance", 0.0), ("clearance", 8.0),
     ("rotor_turn_deg", float("inf")), ("rotor_turn_deg", 400.0), ("max_down_deg", 95.0), ("max_up_deg", -1.0),
     ("standoff_mode", "sideways"), ("start", (0.0, float("nan"), 0.0)), ("start", (1.0, 2.0)),
-    ("check_step", 5.0), ("cluster_angle_deg", 0.0),
+    ("check_step", 5.0), ("cluster_angle_deg", 0.0), ("max_end_trim", -0.1), ("max_end_trim", 8.0),
 ])
 def test_bad_config_names_the_field(field, value):
     with pytest.raises(ValueError, match=field):
@@ -379,6 +379,9 @@ def test_bad_planning_input_names_the_problem(turb):
 @settings(max_examples=6, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(length=st.floats(10.0, 80.0), width_frac=st.floats(0.03, 0.12), step=st.floats(0.8, 3.0),
        spare=st.floats(5.0, 60.0), standoff=st.floats(6.0, 12.0))
+# issue 16: a 4.6 m chord gives a 3.2 m hub; at a 6 m stand-off the back faces' root stand-offs pass
+# 2.09 m behind the hub's rear rim, under the 2 m + check_step/2 clearance: the planner trims them
+@example(length=74.0, width_frac=0.0625, step=1.0, spare=5.0, standoff=6.0)
 def test_random_turbines_get_complete_clear_plans(length, width_frac, step, spare, standoff):
     width = width_frac * length
     t = build_turbine(TurbineSpec(tower_height=length + width + spare, blade_length=length,
@@ -386,7 +389,51 @@ def test_random_turbines_get_complete_clear_plans(length, width_frac, step, spar
     p = plan_inspection(t, standoff=standoff, spacing=0.2)
     assert sorted(x.surface for x in p.tour) == list(range(12))
     assert p.min_clearance() >= p.config.clearance
+    full, _ = cluster_surfaces(t)
     for sid in range(12):
         g = p.surface_geometry(sid)
         field = DistanceField(p.turbine(p.surface_phase[sid]).blade_vertices[g.triangles])
         assert field.distance(p.points[p.surface == sid], 1.0).max() < 1e-9
+        # ends are only ever moved inwards, by at most max_end_trim, and the plan says by how much
+        assert 0.0 <= min(g.trim) and max(g.trim) <= p.config.max_end_trim
+        assert g.length == pytest.approx(full[sid].length - sum(g.trim), abs=1e-9)
+        assert p.summary()["trimmed_m"].get(sid, [0.0, 0.0]) == pytest.approx(list(g.trim), abs=1e-4)
+
+
+def test_end_trim_keeps_the_clear_part_and_no_more():
+    """The issue's turbine: the back faces' roots are trimmed just past where the stand-off clears
+    the hub; the exact distance at the new end node is above the requirement, and just outside
+    it (towards the root) below; without trimming the planner refuses and says why."""
+    w = 0.0625 * 74.0
+    t = build_turbine(TurbineSpec(tower_height=74.0 + w + 5.0, blade_length=74.0, blade_width=w, mesh_step=1.0))
+    p = plan_inspection(t, standoff=6.0, spacing=0.2)
+    trimmed = {i: p.surface_geometry(i).trim for i in range(12) if any(p.surface_geometry(i).trim)}
+    assert set(trimmed) == {1, 5, 9}                           # the three back faces, at the root
+    cfg = p.config
+    need = cfg.clearance + cfg.check_step / 2
+    for sid, (r, tip) in trimmed.items():
+        assert tip == 0.0 and 0.0 < r < 0.5
+        g = p.surface_geometry(sid)
+        turb = p.turbine(p.surface_phase[sid])
+        q_end = g.root + 6.0 * offset_direction(g.normal, "horizontal")
+        axis = (g.tip - g.root) / g.length
+        outside = q_end - 0.1 * axis                          # 10 cm further towards the root
+        d_end, d_out = brute_distance(np.stack([q_end, outside]), turb.all_triangles)
+        assert d_end >= need and d_out < need + 0.1
+    with pytest.raises(ValueError, match="max_end_trim 0.0"):
+        plan_inspection(t, standoff=6.0, spacing=0.2, max_end_trim=0.0)
+
+
+def test_ci_hypothesis_profile_is_derandomised(monkeypatch):
+    """CI (``CI`` set, as runners do) draws the same examples every run; local runs explore."""
+    import conftest
+    from hypothesis import settings as hs
+    assert hs.get_profile("ci").derandomize and hs.get_profile("ci").database is None
+    assert not hs.get_profile("dev").derandomize
+    for value, expected in (("true", "ci"), ("1", "ci"), ("", "dev"), ("false", "dev"), ("0", "dev")):
+        monkeypatch.setenv("CI", value)
+        monkeypatch.delenv("HYPOTHESIS_PROFILE", raising=False)
+        assert conftest._profile() == expected
+    monkeypatch.setenv("HYPOTHESIS_PROFILE", "ci")
+    monkeypatch.setenv("CI", "")
+    assert conftest._profile() == "ci"

@@ -37,6 +37,7 @@ class Surface:
     tip: np.ndarray            # centre-line end node away from the rotor centre
     width: float               # extent of the face across its centre line
     area: float
+    trim: tuple[float, float] = (0.0, 0.0)   # metres the planner moved root / tip inwards (clearance)
 
     @property
     def ends(self) -> np.ndarray:

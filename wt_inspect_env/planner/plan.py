@@ -11,6 +11,11 @@ stand-off if that is already outside, else that stand-off moved along the rotor 
 faces' stand-off plane), the rotor turns by ``rotor_turn_deg`` and phase 2 inspects the deferred
 surfaces on the turned rotor (points of phase 2 are in world coordinates on the rotated blades).
 
+"Stand-off clear" allows trimming: where only the ends of a surface's stand-off line come too
+close to the turbine (the root of a back face passing behind a large hub), the centre line's end
+nodes move inwards to where it clears, by at most ``max_end_trim``; ``Surface.trim`` and the
+summary's ``trimmed_m`` say by how much.
+
 Ordering is exact for the whole two-phase problem: for every way phase 1 can finish (each exit
 node of the full Held-Karp table) the retreat to its hold point and the optimal phase-2 tour from
 there are added, and the cheapest total is kept. Costs are straight-line distances between
@@ -26,6 +31,7 @@ approaches, except the retreat, which happens before the turn).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -134,6 +140,8 @@ class InspectionPlan:
             "spacing_m": self.config.spacing,
             "standoff_m": self.standoff,
             "rotor_turn_deg": self.config.rotor_turn_deg,
+            "trimmed_m": {i: [round(float(t), 4) for t in self.surface_geometry(i).trim]
+                          for i in range(self.n_surfaces) if any(self.surface_geometry(i).trim)},
             "plan_time_s": round(self.timings.get("total", float("nan")), 6),
             "timings_s": {k: round(v, 6) for k, v in self.timings.items()},
         }
@@ -160,6 +168,41 @@ def _standoff_ends(geo: list[Surface], d: float, mode: str) -> np.ndarray:
     if not geo:
         return np.zeros((0, 2, 3))
     return np.stack([g.ends + d * offset_direction(g.normal, mode) for g in geo])
+
+
+def _inspectable(clr: Clearance, g: Surface, d: float, mode: str, max_trim: float) -> Surface | str:
+    """``g`` (with its ends trimmed inwards if needed) if its stand-off line is clear, else why not.
+
+    The stand-off of a surface is the centre line shifted by a constant vector, so clear points of
+    the stand-off line map one-to-one to points of the centre line. The line is sampled finely
+    (``h`` at most a quarter of the check step); the clear part must be one run that reaches to
+    within ``max_trim`` of both ends. Samples must clear ``clearance + check_step/2 + h``, so the
+    resampled path on the trimmed line passes :meth:`Clearance.polyline_clear` as well.
+    """
+    e = _standoff_ends([g], d, mode)[0]
+    if clr.polyline_clear(e):
+        return g
+    length = float(np.linalg.norm(e[1] - e[0]))
+    h = min(clr.step / 4.0, max(length, 1e-9) / 8.0)
+    n = max(2, math.ceil(length / h) + 1)
+    tau = np.linspace(0.0, 1.0, n)
+    pts = e[0] + tau[:, None] * (e[1] - e[0])
+    dist = clr.field.distance(pts, clr.required + h + 1e-6)
+    ok = dist >= clr.required + h
+    dmin = float(clr.field.distance(pts, d).min())
+    blocked = (f"standoff {d!r} m puts the drone {dmin:.2f} m from the turbine (clearance "
+               f"{clr.clearance} m + check_step/2 required)")
+    if not ok.any():
+        return blocked
+    i0, i1 = int(np.argmax(ok)), int(n - 1 - np.argmax(ok[::-1]))
+    trim = (tau[i0] * length, (1.0 - tau[i1]) * length)
+    if not ok[i0:i1 + 1].all() or max(trim) > max_trim:
+        return (f"{blocked}; its clear part would need {trim[0]:.2f} m (root) and {trim[1]:.2f} m (tip) "
+                f"trimmed from the ends, more than max_end_trim {max_trim!r} m" if ok[i0:i1 + 1].all()
+                else f"{blocked} away from the ends of its centre line")
+    root, tip = g.root + tau[i0] * (g.tip - g.root), g.root + tau[i1] * (g.tip - g.root)
+    return dataclasses.replace(g, root=root, tip=tip,
+                               trim=(float(g.trim[0] + trim[0]), float(g.trim[1] + trim[1])))
 
 
 class _RotorGeometry:
@@ -214,34 +257,39 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     offsets = tuple(d * f for f in (0.5, 1.0, 2.0, 4.0))
     clr1 = Clearance(DistanceField(turbine.all_triangles), cfg.clearance, cfg.check_step, frame, offsets)
     # phase 1: normal within the level camera's band and the stand-off clear of the turbine
-    ends1 = {s.id: _standoff_ends([s], d, mode)[0] for s in surfaces if in_band[s.id]}
-    ids1 = [i for i, e in ends1.items() if clr1.polyline_clear(e)]
-    ids2 = [s.id for s in surfaces if s.id not in ids1]
+    why1: dict[int, str] = {}
+    geo1: dict[int, Surface] = {}
+    for sf in surfaces:
+        r = _inspectable(clr1, sf, d, mode, cfg.max_end_trim) if in_band[sf.id] else \
+            f"normal elevation {elev[sf.id]:.1f} deg"
+        if isinstance(r, str):
+            why1[sf.id] = r
+        else:
+            geo1[sf.id] = r
+    ids1 = sorted(geo1)
+    ids2 = [s.id for s in surfaces if s.id not in geo1]
     if not ids1:
         raise ValueError("no surface can be inspected before the rotor turn (normal elevations "
                          f"{np.round(elev, 1).tolist()} deg; standoff {d} m, clearance {cfg.clearance} m)")
     turbine2 = turbine.rotated(cfg.rotor_turn_deg)
-    geo2 = {i: describe_surface(turbine2, surfaces[i].triangles, i, surfaces[i].blade) for i in ids2}
-    G1 = [surfaces[i] for i in ids1]
-    G2 = [geo2[i] for i in ids2]
-    F1, F2 = _forbidden(G1), _forbidden(G2)
     clr2 = Clearance(DistanceField(turbine2.all_triangles), cfg.clearance, cfg.check_step, frame, offsets) \
         if ids2 else None
-    for i, g in zip(ids2, G2):
-        why = None
+    geo2: dict[int, Surface] = {}
+    for i in ids2:
+        g = describe_surface(turbine2, surfaces[i].triangles, i, surfaces[i].blade)
         if not -cfg.max_down_deg <= g.elevation_deg <= cfg.max_up_deg:
-            why = (f"its normal elevation is {g.elevation_deg:.1f} deg after the turn, outside "
-                   f"[-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
-        elif not clr2.polyline_clear(e := _standoff_ends([g], d, mode)[0]):
-            dmin = float(clr2.field.distance(np.linspace(e[0], e[1], 200), d).min())
-            why = (f"standoff {d!r} m puts the drone {dmin:.2f} m from the turbine (clearance "
-                   f"{cfg.clearance} m + check_step/2 required)")
-        if why:
-            in_phase1 = (" (stand-off not clear of the turbine)" if in_band[i]
-                         else f" (normal elevation {elev[i]:.1f} deg)")
-            raise ValueError(f"surface {i} cannot be inspected before the rotor turn{in_phase1} nor after "
-                             f"rotor_turn_deg {cfg.rotor_turn_deg!r}: {why}")
-    E1 = np.stack([ends1[i] for i in ids1])
+            r: Surface | str = (f"its normal elevation is {g.elevation_deg:.1f} deg after the turn, outside "
+                                f"[-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
+        else:
+            r = _inspectable(clr2, g, d, mode, cfg.max_end_trim)
+        if isinstance(r, str):
+            raise ValueError(f"surface {i} cannot be inspected before the rotor turn ({why1[i]}) nor after "
+                             f"rotor_turn_deg {cfg.rotor_turn_deg!r}: {r}")
+        geo2[i] = r
+    G1 = [geo1[i] for i in ids1]
+    G2 = [geo2[i] for i in ids2]
+    F1, F2 = _forbidden(G1), _forbidden(G2)
+    E1 = _standoff_ends(G1, d, mode)
     E2 = _standoff_ends(G2, d, mode)
     start = np.asarray(cfg.start, dtype=np.float64) if cfg.start is not None else _default_start(turbine, rotor, d)
     if not clr1.is_clear(start[None]):
@@ -282,9 +330,9 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     pieces: list[Piece] = []
     pos = start
     prev: tuple[Surface, int, int] | None = None      # (surface geometry, exit end, phase)
-    prev_n = surfaces[stops[0][0]].normal if stops[0][2] == 1 else geo2[stops[0][0]].normal
+    prev_n = geo1[stops[0][0]].normal if stops[0][2] == 1 else geo2[stops[0][0]].normal
     for sid, entry, ph in stops:
-        g = surfaces[sid] if ph == 1 else geo2[sid]
+        g = geo1[sid] if ph == 1 else geo2[sid]
         clr = clr1 if ph == 1 else clr2
         if ph == 2 and prev is not None and prev[2] == 1:
             route = clr1.route(pos, hold)                   # retreat before the rotor turn
@@ -319,7 +367,7 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
         points=sp.points, normals=sp.normals, surface=sp.surface, phase=sp.phase, s=s,
         standoff_points=sp.standoff_points, standoff_s=s_q, kind=sp.kind,
         tour=tuple(TourStop(sid, ph, "root" if e == 0 else "tip") for sid, e, ph in stops),
-        tour_length=float(tour_length), surfaces=tuple(surfaces), surfaces_phase2=geo2,
+        tour_length=float(tour_length), surfaces=tuple(geo1.get(sf.id, sf) for sf in surfaces), surfaces_phase2=geo2,
         surface_phase=surface_phase, turbine_phase1=turbine, turbine_phase2=turbine2, standoff=d,
         config=cfg, start=start, hold_point=hold, ignored_triangles=ignored,
         timings={"cluster": t1 - t0, "setup": t2 - t1, "order": t3 - t2, "path": t4 - t3, "total": t4 - t0})

@@ -1,0 +1,32 @@
+"""Hypothesis profiles: CI runs are reproducible, local runs keep exploring.
+
+``ci`` (selected when the ``CI`` environment variable is set to anything but ``""``/``0``/``false``,
+as GitHub Actions, GitLab and most runners do; or with ``HYPOTHESIS_PROFILE=ci``) derandomises
+example generation: every CI run draws the same examples from each test's strategy, so a red
+build is a regression, not bad luck; no example database is written (a fresh checkout has none
+anyway), the reproduction blob of a failure is printed and no deadline applies (a shared
+CI machine's timing is not the code's). ``dev`` (the default) is Hypothesis'
+normal random exploration with its local database, so a local run may still find new failing
+cases - pin those with ``@example`` in the test.
+"""
+from __future__ import annotations
+
+import os
+
+from hypothesis import HealthCheck, settings
+
+# Written out in full rather than relying on Hypothesis' own CI detection (6.x versions differ).
+settings.register_profile("ci", derandomize=True, database=None, print_blob=True, deadline=None,
+                          suppress_health_check=[HealthCheck.too_slow])
+settings.register_profile("dev")
+
+
+def _profile() -> str:
+    explicit = os.environ.get("HYPOTHESIS_PROFILE")
+    if explicit:
+        return explicit
+    ci = os.environ.get("CI", "").strip().lower()
+    return "ci" if ci not in ("", "0", "false", "no") else "dev"
+
+
+settings.load_profile(_profile())
