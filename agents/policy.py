@@ -23,7 +23,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from controllers.policy import Policy, check_observation
+from wt_inspect_env.policy import Policy, check_observation
 from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice

@@ -235,8 +235,9 @@ class RTIOptions:
 class SolveStats:
     """What one control step (or one SQP solve) cost and how it ended.
 
-    ``solve_ms`` = preparation + feedback; ``feedback_ms`` is the latency from measurement to
-    command. ``status`` is HPIPM's flag name (``SUCCESS``, ``MAX_ITER``, ``MIN_STEP``,
+    ``solve_ms`` = preparation + feedback; ``feedback_ms`` is the QP alone; ``latency_ms`` is the
+    time from measurement to command (the feedback, plus the preparation when it ran after the
+    measurement arrived). ``status`` is HPIPM's flag name (``SUCCESS``, ``MAX_ITER``, ``MIN_STEP``,
     ``NAN_SOL``...) or ``NONFINITE`` when the step contained NaN/inf; ``fallback`` tells whether
     the command came from the shifted previous plan / hover instead of this QP.
     """
@@ -244,6 +245,7 @@ class SolveStats:
     solve_ms: float = 0.0
     prepare_ms: float = 0.0
     feedback_ms: float = 0.0
+    latency_ms: float = 0.0
     qp_iterations: int = 0
     status: str = "NOT_SOLVED"
     fallback: bool = False
@@ -569,7 +571,7 @@ class RTISolver:
         if code == 0 and not ok:
             status = "NONFINITE"
         st = SolveStats(prepare_ms=self._prepare_ms, feedback_ms=elapsed,
-                        solve_ms=self._prepare_ms + elapsed,
+                        solve_ms=self._prepare_ms + elapsed, latency_ms=self._prepare_ms + elapsed,
                         qp_iterations=int(stats.get("iter_count", -1)), status=status,
                         cost=float(self._cost_buf[0]))
         if ok:
@@ -726,7 +728,7 @@ class IpoptOCPSolver:
         stats = self._solver.stats()
         w = np.asarray(sol["x"]).ravel()
         ok = bool(stats.get("success")) and np.all(np.isfinite(w))
-        self.last_stats = SolveStats(solve_ms=elapsed, feedback_ms=elapsed,
+        self.last_stats = SolveStats(solve_ms=elapsed, feedback_ms=elapsed, latency_ms=elapsed,
                                      qp_iterations=int(stats.get("iter_count", -1)),
                                      status=str(stats.get("return_status")), fallback=not ok,
                                      cost=float(sol["f"]))

@@ -59,7 +59,7 @@ from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_array, check_choice, check_finite, check_positive
 
-from .policy import Policy, check_observation
+from wt_inspect_env.policy import Policy, check_observation
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 from .vtnmpc import horizontal_normal, state_from_obs
 

@@ -60,7 +60,7 @@ from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice, check_finite, check_positive
 
-from .policy import Policy, check_observation
+from wt_inspect_env.policy import Policy, check_observation
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
 N_PARAMS = 11

@@ -321,8 +321,8 @@ def test_short_training_checkpoints_resumes_and_the_model_runs_in_the_harness(tm
     assert doc["obs_normalization"] is not None and doc["spec"] == ck_doc["spec"]
 
     # the saved model flies through the evaluation harness by its ppo:PATH name
-    from controllers.evaluation.runner import execute, make_spec
-    from controllers.evaluation.scenarios import env_options
+    from wt_inspect.evaluation.runner import execute, make_spec
+    from wt_inspect.evaluation.scenarios import env_options
     path = str(tmp_path / "b" / "model.zip")
     spec = make_spec("surface", f"ppo:{path}", 4.0, 0, env_options("surface", 4.0), max_time=1.0)
     res = execute(spec, record=True)

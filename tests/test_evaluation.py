@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from controllers.evaluation import OutputDirError, evaluate_policy, load_run, run_evaluation
-from controllers.evaluation.runner import save_run
-from controllers.evaluation import registry
-from controllers.evaluation.cli import main as cli_main
-from controllers.evaluation.report import CSV_COLUMNS, read_csv
-from controllers.evaluation.scenarios import env_options
-from controllers.policy import Policy
+from wt_inspect.evaluation import OutputDirError, evaluate_policy, load_run, run_evaluation
+from wt_inspect.evaluation.runner import save_run
+from wt_inspect.evaluation import registry
+from wt_inspect.evaluation.cli import main as cli_main
+from wt_inspect.evaluation.report import CSV_COLUMNS, read_csv
+from wt_inspect.evaluation.scenarios import env_options
+from wt_inspect_env.policy import Policy
 from wt_inspect_env.metrics import compute_metrics
 
 REQUIRED = ("scenario", "controller", "wind", "seed", "coverage", "safety", "centering", "mean_distance",
@@ -118,7 +118,7 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
 
 def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
     out = tmp_path / "ev"
-    cmd = [sys.executable, "-m", "wt_inspect_env.cli", "evaluate", "--scenario", "surface", "--controllers",
+    cmd = [sys.executable, "-m", "wt_inspect.cli", "evaluate", "--scenario", "surface", "--controllers",
            "vtnmpc,nmpc,pampc", "--winds", "0,4", "--max-time", "15", "--out", str(out), "--jobs", "2",
            "--no-progress", "--no-figures"]   # 15 s: each run ~1.5 s, so the interrupt lands mid-sweep
     log = tmp_path / "log.txt"
@@ -153,7 +153,7 @@ def test_bad_controller_and_unwritable_out_dir(tmp_path, capsys):
     out = tmp_path / "ev"
     assert cli_main(["--scenario", "surface", "--controllers", "vtnmpc,lqr", "--out", str(out)]) == 2
     err = capsys.readouterr().err
-    assert "'lqr'" in err and all(n in err for n in ("vtnmpc", "nmpc", "pampc", "ppo:PATH.zip"))
+    assert "'lqr'" in err and all(n in err for n in ("vtnmpc", "nmpc", "pampc", "ppo:PATH"))
     assert not out.exists()
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
@@ -238,7 +238,7 @@ def test_sb3_hook(tmp_path, monkeypatch):
     assert key() != k1
     with pytest.raises(ValueError, match="does not exist"):
         registry.check_controller(f"ppo:{tmp_path / 'missing.zip'}")
-    with pytest.raises(ValueError, match="not a stable-baselines3 algorithm"):
+    with pytest.raises(ValueError, match="'dqn2' is not a registered name taking an argument"):
         registry.check_controller("dqn2:x.zip")
 
 
@@ -277,6 +277,6 @@ def test_local_and_ray_backends_agree(tmp_path):
 
 
 def test_display_names():
-    from controllers.evaluation.registry import display_name
+    from wt_inspect.evaluation.registry import display_name
     assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"
     assert display_name("vtnmpc-plus") == "VT-NMPC+" and display_name("custom") == "custom"

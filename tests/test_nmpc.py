@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from controllers.bench import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
+from closed_loop import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
                                offset_start, run_closed_loop)
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, residual_functions
 from controllers.rti import IpoptOCPSolver, RTISolver

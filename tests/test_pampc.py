@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from controllers.bench import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
+from closed_loop import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
                                offset_start, run_closed_loop)
 from controllers.pampc import (PAMPCConfig, PAMPCPolicy, PAMPCWeights, build_ocp,
                                camera_rotation, projection_function)

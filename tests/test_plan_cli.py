@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from wt_inspect_env import cli
+from wt_inspect import cli
 from wt_inspect_env.atomic_io import atomic_path
 from wt_inspect_env.commands import bench_planner
 from wt_inspect_env.commands import plan as plan_cmd
@@ -103,7 +103,7 @@ def test_bench_planner_json(capsys):
 
 def test_console_entry_point(tmp_path):
     """The installed ``wt-inspect`` command (through ``python -m``, so the test needs no PATH)."""
-    res = subprocess.run([sys.executable, "-m", "wt_inspect_env.cli", "plan", "--out", str(tmp_path),
+    res = subprocess.run([sys.executable, "-m", "wt_inspect.cli", "plan", "--out", str(tmp_path),
                           "--json", "--no-plot"], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["surfaces"] == 12

@@ -6,9 +6,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from controllers.bench import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
+from closed_loop import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
                                offset_start, run_closed_loop)
-from controllers.policy import Policy
+from wt_inspect_env.policy import Policy
 from controllers.rti import RTIOptions
 from controllers.vtnmpc import (STAGE_RESIDUAL_NAMES, WEIGHT_SETS, VTNMPCConfig, VTNMPCPolicy,
                                 VTNMPCWeights, attitude_residual, build_ocp, horizontal_normal,

@@ -1,69 +1,19 @@
-"""The ``wt-inspect`` command line: one entry point, subcommands implemented in their own modules.
+"""Compatibility shim: the ``wt-inspect`` dispatcher moved to :mod:`wt_inspect.cli`.
 
-Each subcommand module exposes ``main(argv: list[str], prog: str) -> int``; it is imported only when
-its subcommand runs, so ``wt-inspect plan`` never pays for importing torch, and the environment
-package does not import ``controllers`` or ``agents`` except here, where the command line wires the
-layers together.
+Kept only while work started against the old path is re-pointed (the console script already runs
+``wt_inspect.cli:main``); it is the one module of this package that reaches above it, and it will
+be deleted. Add new subcommands to the tables in ``wt_inspect/cli.py``.
 """
 from __future__ import annotations
 
-import importlib
 import sys
-
-COMMANDS: dict[str, tuple[str, str]] = {
-    "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
-    "evaluate": ("controllers.evaluation.cli", "run controllers on a scenario, write the table and figures"),
-    "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task"),
-}
-BENCHES: dict[str, tuple[str, str]] = {
-    "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
-    "coverage": ("wt_inspect_env.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
-    "env": ("wt_inspect_env.commands.bench_env", "environment steps per second (full mission)"),
-    "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
-    "solver": ("controllers.bench", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
-    "train": ("agents.bench", "training throughput with 2 subprocess environments"),
-}
-
-
-def _usage() -> str:
-    lines = ["usage: wt-inspect <command> [options]", "", "commands:"]
-    lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
-    lines += ["  bench      benchmarks: " + ", ".join(BENCHES)]
-    lines += ["", "Run 'wt-inspect <command> --help' for the options of one command."]
-    return "\n".join(lines)
-
-
-def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
-    module_name, _ = table[name]
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        missing = exc.name or ""
-        if missing.split(".")[0] in {"torch", "stable_baselines3", "ray", "tensorboard"}:
-            print(f"{prog}: needs the optional dependency '{missing}'; "
-                  "install it with: pip install 'wt-inspect[rl]' (or [ray])", file=sys.stderr)
-            return 2
-        raise
-    return int(module.main(argv, prog=prog) or 0)
 
 
 def main(argv: list[str] | None = None) -> int:
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if not argv or argv[0] in {"-h", "--help"}:
-        print(_usage())
-        return 0 if argv else 2
-    cmd, rest = argv[0], argv[1:]
-    if cmd == "bench":
-        if not rest or rest[0] not in BENCHES:
-            print("usage: wt-inspect bench {" + ",".join(BENCHES) + "} [--json]", file=sys.stderr)
-            for name, (_, help_) in BENCHES.items():
-                print(f"  {name:<8} {help_}", file=sys.stderr)
-            return 2
-        return _dispatch(BENCHES, rest[0], rest[1:], prog=f"wt-inspect bench {rest[0]}")
-    if cmd not in COMMANDS:
-        print(f"wt-inspect: unknown command {cmd!r}\n\n{_usage()}", file=sys.stderr)
-        return 2
-    return _dispatch(COMMANDS, cmd, rest, prog=f"wt-inspect {cmd}")
+    """Run ``wt_inspect.cli.main`` (imported here, at call time, so importing this package never
+    imports the layers above it)."""
+    from wt_inspect.cli import main as _main
+    return _main(argv)
 
 
 if __name__ == "__main__":  # pragma: no cover

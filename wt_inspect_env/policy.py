@@ -4,11 +4,20 @@
 stable-baselines3's ``predict(obs, state=None, episode_start=None, deterministic=True)``.
 ``last_stats`` holds the statistics of the last call (for MPCs: solve time, QP iterations,
 status, fallback flag).
+
+It lives with the environment (not with the controllers) because it is the environment's contract
+with whoever flies it: the MPCs (``controllers``) and the learned agents (``agents``) both
+implement it without importing each other, as Gymnasium's ``Env`` lives in Gymnasium and not in
+any agent library. :class:`PolicyEntry` is what a package registers under the entry-point group
+:data:`ENTRY_POINT_GROUP` (``[project.entry-points."wt_inspect.controllers"]`` in its
+``pyproject.toml``) so the evaluation harness and the command line find it by name without
+importing it by name.
 """
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -70,3 +79,33 @@ class Policy(ABC):
             self.reset()
         action = self.act(obs)
         return (action[None, :] if batched else action), state
+
+
+ENTRY_POINT_GROUP = "wt_inspect.controllers"
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    """A named policy as a package registers it (the value of one entry point).
+
+    ``factory(env)`` builds the policy from the *unwrapped* environment (its ``params``,
+    ``config.standoff``, ``dt``, ``config.camera``), so the policy's model always matches the
+    simulated drone. An entry with ``takes_argument`` is addressed as ``NAME:ARG`` (e.g.
+    ``ppo:models/agent.zip``) and its factory is ``factory(env, arg)``; ``check(arg)`` raises a
+    one-line ValueError for a bad argument before any run starts, and ``fingerprint(arg)`` names
+    what makes the argument's behaviour unique (a model file's content hash), so a changed model
+    is a different run.
+    """
+
+    factory: Callable[..., Any]
+    description: str
+    display_name: str | None = None
+    takes_argument: bool = False
+    check: Callable[[str], None] | None = None
+    fingerprint: Callable[[str], str] | None = None
+
+    def __post_init__(self) -> None:
+        if not callable(self.factory):
+            raise ValueError(f"PolicyEntry.factory must be callable, got {self.factory!r}")
+        if not isinstance(self.description, str) or not self.description:
+            raise ValueError(f"PolicyEntry.description must be a non-empty string, got {self.description!r}")

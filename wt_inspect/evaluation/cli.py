@@ -16,7 +16,7 @@ from typing import Any
 
 from . import OutputDirError, command_line, run_evaluation
 from .backends import BACKENDS
-from .registry import CONTROLLERS, valid_names
+from .registry import entries, valid_names
 from .scenarios import SCENARIOS, WIND_TYPES
 
 
@@ -56,9 +56,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                                  epilog="scenarios:\n" + "\n".join(f"  {k:<8} {s.description} (winds "
                                                                   f"{', '.join(f'{w:g}' for w in s.winds)})"
                                                                   for k, s in SCENARIOS.items())
-                                 + "\ncontrollers:\n" + "\n".join(f"  {k:<13} {e.description}"
-                                                                  for k, e in CONTROLLERS.items())
-                                 + "\n  ppo:PATH.zip  a saved stable-baselines3 model (sac:, td3:... alike)")
+                                 + "\ncontrollers (registered entry points):\n"
+                                 + "\n".join(f"  {k + (':PATH' if e.takes_argument else ''):<13} {e.description}"
+                                             for k, e in entries().items()))
     ap.add_argument("--scenario", default="paper", help=f"one of {', '.join(SCENARIOS)} (default paper)")
     ap.add_argument("--controllers", default="vtnmpc,nmpc,pampc", help="comma-separated (default vtnmpc,nmpc,pampc)")
     ap.add_argument("--winds", type=_list(float, "--winds"), metavar="W,...",

@@ -2,7 +2,7 @@
 
 Python API::
 
-    from controllers.evaluation import evaluate_policy, run_evaluation
+    from wt_inspect.evaluation import evaluate_policy, run_evaluation
 
     # one run of any object with reset(seed=None) / act(obs) (or a factory env -> policy, or a
     # registered name such as "vtnmpc"), scored exactly as the command line scores the MPCs
@@ -40,12 +40,11 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from . import registry
 from .backends import BACKENDS, check_jobs, run_specs
-from .registry import CONTROLLERS
 from .report import ReportContext, write_csv, write_markdown
 from .runner import RunResult, RunSpec, code_fingerprint, execute, load_run, make_spec, save_run
 from .scenarios import SCENARIOS, WIND_TYPES, SweepSpec, env_options, get_scenario
 
-__all__ = ["evaluate_policy", "run_evaluation", "Evaluation", "RunResult", "RunSpec", "SCENARIOS", "CONTROLLERS",
+__all__ = ["evaluate_policy", "run_evaluation", "Evaluation", "RunResult", "RunSpec", "SCENARIOS",
            "BACKENDS", "WIND_TYPES", "OutputDirError", "load_run", "env_options"]
 
 
@@ -81,7 +80,7 @@ def evaluate_policy(policy: Any, scenario: str = "surface", wind: float = 4.0, s
     """Score one policy on one scenario run, the same way the command line does.
 
     ``policy``: an object with ``reset(seed=None)`` and ``act(obs) -> normalised action`` (see
-    :class:`controllers.policy.Policy`; it must match the scenario's drone and stand-off - the
+    :class:`wt_inspect_env.policy.Policy`; it must match the scenario's drone and stand-off - the
     environment's ``params`` and ``config.standoff``), a factory ``env -> policy`` called with
     the unwrapped environment (recommended: it can read those), or a registered controller name.
     ``max_time`` caps the simulated seconds. ``save_dir``: also write the run file there.

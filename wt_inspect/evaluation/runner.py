@@ -31,6 +31,9 @@ key                  shape/dtype  meaning
 ``solve_ms``         (N,) f4      the policy's own solve time (``last_stats.solve_ms``) or
                                   NaN if it reports none; NaN for the last sample
 ``act_ms``           (N,) f4      wall time of ``policy.act`` measured here (NaN for last)
+``latency_ms``       (N,) f4      the policy's observation-to-command latency
+                                  (``last_stats.latency_ms``, else its ``solve_ms``), NaN if
+                                  it reports neither; NaN for the last sample
 ``coverage_counts``  (M,) i4      frames in which each mission triangle was seen
 ``inspected``        (M,) i4      indices of those triangles in the turbine's blade arrays
 ``blade_triangles``  (P,B,3,3) f4 the turbine's blade triangles in each of its P phases
@@ -76,20 +79,40 @@ METRIC_COLUMNS = {
 ProgressCallback = Callable[[float, float], None]
 
 
+# The harness's own modules that decide a run's outcome (the episode loop, the scenarios' options,
+# name resolution); its reporting, figures and backends only present or schedule results.
+_HARNESS_SOURCES = ("runner.py", "scenarios.py", "registry.py")
+
+
+def code_sources() -> list[Path]:
+    """Every source file that can change a run's result: the environment package, every package
+    that registers a policy (``controllers``, ``agents`` and any third-party one, found through
+    the entry points) and the harness's outcome-deciding modules (:data:`_HARNESS_SOURCES`)."""
+    roots = [Path(wt_inspect_env.__file__).parent]
+    roots += [r for r in registry.source_roots() if r not in roots]
+    files = [f for root in roots for f in sorted(root.rglob("*.py"))]
+    here = Path(__file__).parent
+    return files + [here / name for name in _HARNESS_SOURCES]
+
+
 def code_fingerprint() -> str:
-    """Hash of the simulation and controller sources (``wt_inspect_env`` and ``controllers``
-    without this harness's reporting code). Stored in every run file: a resumed run made by other
-    code is reported (results.md, stderr), since its numbers may not be comparable."""
-    import controllers
-    roots = [Path(wt_inspect_env.__file__).parent, Path(controllers.__file__).parent]
+    """Hash of :func:`code_sources` (paths relative to their package's parent, and contents).
+    Stored in every run file: a resumed run made by other code is reported (results.md, stderr),
+    since its numbers may not be comparable."""
     h = hashlib.sha256()
-    for root in roots:
-        for f in sorted(root.rglob("*.py")):
-            if "evaluation" in f.relative_to(root).parts:
-                continue
-            h.update(str(f.relative_to(root.parent)).encode())
-            h.update(f.read_bytes())
+    for f in code_sources():
+        h.update(str(f.relative_to(_package_root(f))).encode())
+        h.update(f.read_bytes())
     return h.hexdigest()[:12]
+
+
+def _package_root(f: Path) -> Path:
+    """The directory holding ``f``'s top-level package (so the hashed path is ``pkg/mod.py``
+    wherever the checkout is)."""
+    root = f.parent
+    while (root.parent / "__init__.py").is_file():
+        root = root.parent
+    return root.parent
 
 
 @dataclass(frozen=True)
@@ -201,7 +224,8 @@ class _Recorder:
              "distance": (np.float32, ()), "heading": (np.float32, ()), "heading_body": (np.float32, ()),
              "inspecting": (np.bool_, ()),
              "phase": (np.int8, ()), "collision": (np.bool_, ()), "coverage": (np.float32, ()),
-             "solve_ms": (np.float32, ()), "act_ms": (np.float32, ())}
+             "solve_ms": (np.float32, ()), "act_ms": (np.float32, ()),
+             "latency_ms": (np.float32, ())}
 
     def __init__(self, capacity: int) -> None:
         self.n = 0
@@ -247,18 +271,31 @@ def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mappi
     b["action"][i] = np.nan
     b["solve_ms"][i] = np.nan
     b["act_ms"][i] = np.nan
+    b["latency_ms"][i] = np.nan
     return i
 
 
-def _solve_ms(policy: Any) -> float:
+def _stat_ms(policy: Any, name: str) -> float:
+    """``policy.last_stats.<name>`` (an attribute or a mapping key) as a float, NaN if absent."""
     stats = getattr(policy, "last_stats", None)
-    v = getattr(stats, "solve_ms", None)
+    v = getattr(stats, name, None)
     if v is None and isinstance(stats, Mapping):
-        v = stats.get("solve_ms")
+        v = stats.get(name)
     try:
         return float(v) if v is not None else math.nan
     except (TypeError, ValueError):
         return math.nan
+
+
+def _solve_ms(policy: Any) -> float:
+    return _stat_ms(policy, "solve_ms")
+
+
+def _latency_ms(policy: Any) -> float:
+    """Observation-to-command latency as the policy reports it; a policy that reports only its
+    solve time has no part of ``act`` that runs ahead of the observation."""
+    v = _stat_ms(policy, "latency_ms")
+    return _solve_ms(policy) if math.isnan(v) else v
 
 
 def make_env(env_options: Mapping[str, Any]) -> gym.Env:
@@ -267,11 +304,11 @@ def make_env(env_options: Mapping[str, Any]) -> gym.Env:
 
 
 def check_policy(policy: Any) -> None:
-    """A policy needs ``act(obs)`` and ``reset(seed=None)`` (see :mod:`controllers.policy`)."""
+    """A policy needs ``act(obs)`` and ``reset(seed=None)`` (see :mod:`wt_inspect_env.policy`)."""
     missing = [m for m in ("act", "reset") if not callable(getattr(policy, m, None))]
     if missing:
         raise ValueError(f"policy {type(policy).__name__} lacks {' and '.join(missing)}(); a policy needs "
-                         "reset(seed=None) and act(obs) -> normalised action (see controllers.policy.Policy)")
+                         "reset(seed=None) and act(obs) -> normalised action (see wt_inspect_env.policy.Policy)")
 
 
 def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
@@ -303,6 +340,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
             rec.buf["action"][i] = action.reshape(-1)[:4] if action.size >= 4 else np.nan
             rec.buf["solve_ms"][i] = solve[-1]
             rec.buf["act_ms"][i] = dt_act
+            rec.buf["latency_ms"][i] = _latency_ms(policy)
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         if record:

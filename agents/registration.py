@@ -1,0 +1,52 @@
+"""The saved stable-baselines3 agents as named policies: ``ppo:PATH`` and ``sac:PATH``.
+
+Entry points of the group ``wt_inspect.controllers`` (see ``pyproject.toml``) whose values are the
+:class:`~wt_inspect_env.policy.PolicyEntry` objects below; the evaluation harness finds them
+through ``importlib.metadata`` and never imports this package by name. Nothing heavy is imported
+here: torch and stable-baselines3 load only when a model is (:func:`agents.policy.load_sb3_policy`).
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+from wt_inspect_env.policy import PolicyEntry
+
+
+def check_model_file(path: str) -> None:
+    """ValueError naming the path unless the model file exists (cheap: nothing is loaded)."""
+    if not Path(path).is_file():
+        raise ValueError(f"model file {path!r} does not exist")
+
+
+def model_fingerprint(path: str) -> str:
+    """Content hash of a saved model and its sidecar (the sidecar holds the observation
+    normalisation, so a retrained or re-normalised agent is a different controller)."""
+    model = Path(path)
+    h = hashlib.sha256(model.read_bytes())
+    sidecar = model.with_suffix(".json")
+    if sidecar.is_file():
+        h.update(sidecar.read_bytes())
+    return "sha256=" + h.hexdigest()[:16]
+
+
+def _loader(algo: str):
+    def load(env: Any, path: str) -> Any:
+        """Load ``path`` for ``env``; a missing optional dependency is a one-line ValueError."""
+        try:
+            from .policy import load_sb3_policy   # torch and stable-baselines3 only now
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.split(".")[0] in {"torch", "stable_baselines3"}:
+                raise ValueError(f"controller '{algo}:{path}' needs the optional dependency {exc.name!r}; "
+                                 "install it with: pip install 'wt-inspect[rl]'") from None
+            raise ValueError(f"controller '{algo}:{path}' needs agents.policy.load_sb3_policy, which cannot "
+                             f"be imported: {exc}") from None
+        return load_sb3_policy(algo, path, env)
+    return load
+
+
+ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip)", display_name="PPO",
+                  takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)
+sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip)", display_name="SAC",
+                  takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)

@@ -1,0 +1,73 @@
+"""The ``wt-inspect`` command line: one entry point, subcommands implemented in their own modules.
+
+This dispatcher sits above every package: it is the one place that names modules of
+``wt_inspect_env``, ``controllers``/``agents`` and ``wt_inspect`` together. Each package keeps the
+subcommands that need only itself and what lies below it (``wt_inspect_env.commands``: plan and the
+environment benchmarks; ``agents``: train and its benchmark), and the commands that need the
+layers wired together live here (``wt_inspect.evaluation.cli``, ``wt_inspect.commands``). Each
+subcommand module exposes ``main(argv: list[str], prog: str) -> int``; it is imported only when its
+subcommand runs, so ``wt-inspect plan`` never pays for importing torch.
+"""
+from __future__ import annotations
+
+import importlib
+import sys
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
+    "evaluate": ("wt_inspect.evaluation.cli", "run controllers on a scenario, write the table and figures"),
+    "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task"),
+}
+BENCHES: dict[str, tuple[str, str]] = {
+    "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
+    "coverage": ("wt_inspect_env.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
+    "env": ("wt_inspect_env.commands.bench_env", "environment steps per second (full mission)"),
+    "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
+    "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
+    "train": ("agents.bench", "training throughput with 2 subprocess environments"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: wt-inspect <command> [options]", "", "commands:"]
+    lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
+    lines += ["  bench      benchmarks: " + ", ".join(BENCHES)]
+    lines += ["", "Run 'wt-inspect <command> --help' for the options of one command."]
+    return "\n".join(lines)
+
+
+def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
+    module_name, _ = table[name]
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        missing = exc.name or ""
+        if missing.split(".")[0] in {"torch", "stable_baselines3", "ray", "tensorboard"}:
+            print(f"{prog}: needs the optional dependency '{missing}'; "
+                  "install it with: pip install 'wt-inspect[rl]' (or [ray])", file=sys.stderr)
+            return 2
+        raise
+    return int(module.main(argv, prog=prog) or 0)
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if not argv or argv[0] in {"-h", "--help"}:
+        print(_usage())
+        return 0 if argv else 2
+    cmd, rest = argv[0], argv[1:]
+    if cmd == "bench":
+        if not rest or rest[0] not in BENCHES:
+            print("usage: wt-inspect bench {" + ",".join(BENCHES) + "} [--json]", file=sys.stderr)
+            for name, (_, help_) in BENCHES.items():
+                print(f"  {name:<8} {help_}", file=sys.stderr)
+            return 2
+        return _dispatch(BENCHES, rest[0], rest[1:], prog=f"wt-inspect bench {rest[0]}")
+    if cmd not in COMMANDS:
+        print(f"wt-inspect: unknown command {cmd!r}\n\n{_usage()}", file=sys.stderr)
+        return 2
+    return _dispatch(COMMANDS, cmd, rest, prog=f"wt-inspect {cmd}")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,1 @@
+"""Subcommands of ``wt-inspect`` that wire several layers together (see :mod:`wt_inspect.cli`)."""

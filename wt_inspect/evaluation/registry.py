@@ -1,0 +1,135 @@
+"""Controller names -> policy factories, found through Python entry points.
+
+Every package that provides policies registers them under the entry-point group
+``wt_inspect.controllers`` (:data:`wt_inspect_env.policy.ENTRY_POINT_GROUP`), each name pointing at
+a :class:`~wt_inspect_env.policy.PolicyEntry`::
+
+    [project.entry-points."wt_inspect.controllers"]
+    vtnmpc = "controllers.registration:vtnmpc"
+    ppo = "agents.registration:ppo"
+
+so this harness never imports ``controllers`` or ``agents`` by name, and a third-party controller
+plugs in exactly as ours do (as Gymnasium finds environments). Names are plain (``vtnmpc``,
+``nmpc``, ...) or, for entries that take an argument, ``NAME:ARG`` (``ppo:PATH.zip``).
+A factory takes the (unwrapped) environment and returns a policy with the common interface
+(``reset(seed=None)``, ``act(obs)``; see :mod:`wt_inspect_env.policy`).
+
+Entry points are read from the installed package metadata: after editing ``pyproject.toml``,
+reinstall (``pip install -e .``) for a new name to appear.
+"""
+from __future__ import annotations
+
+import functools
+from importlib.metadata import EntryPoint, entry_points
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry
+
+PolicyFactory = Callable[[Any], Any]
+
+
+@functools.cache
+def _entry_points() -> dict[str, EntryPoint]:
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+@functools.cache
+def _load(name: str) -> PolicyEntry:
+    ep = _entry_points()[name]
+    entry = ep.load()
+    if not isinstance(entry, PolicyEntry):
+        raise ValueError(f"entry point {name!r} of group {ENTRY_POINT_GROUP!r} ({ep.value}) must be a "
+                         f"wt_inspect_env.policy.PolicyEntry, got {type(entry).__name__}")
+    return entry
+
+
+def entries() -> Mapping[str, PolicyEntry]:
+    """Every registered entry, by name (loads each entry point's module)."""
+    return {name: _load(name) for name in _entry_points()}
+
+
+def source_roots() -> list[Path]:
+    """The package directories that provide registered policies (for the run files' code
+    fingerprint: every source that can change a result)."""
+    roots = []
+    for ep in _entry_points().values():
+        module = __import__(ep.module.split(".")[0])
+        root = Path(module.__file__).parent
+        if root not in roots:
+            roots.append(root)
+    return roots
+
+
+def valid_names() -> str:
+    """The names accepted by :func:`resolve`, for error messages and ``--help``."""
+    names = _entry_points()
+    if not names:
+        return ("(none registered: the package metadata has no entry points of group "
+                f"{ENTRY_POINT_GROUP!r}; reinstall with pip install -e .)")
+    plain = [n for n in names if not _load(n).takes_argument]
+    with_arg = [f"{n}:PATH" for n in names if _load(n).takes_argument]
+    return ", ".join(plain + with_arg)
+
+
+def split_name(name: str) -> tuple[str, str | None]:
+    """``("ppo", "path.zip")`` for ``"ppo:path.zip"``, ``("vtnmpc", None)`` for ``"vtnmpc"``;
+    ValueError naming the controller if it is not registered or its argument is missing/extra."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"controller must be a non-empty name; valid: {valid_names()}")
+    base, sep, arg = name.partition(":")
+    key = base.lower() if sep else base
+    if key not in _entry_points():
+        what = f"{base!r} is not a registered name taking an argument" if sep else "not registered"
+        raise ValueError(f"unknown controller {name!r}: {what}; valid: {valid_names()}")
+    entry = _load(key)
+    if entry.takes_argument and not arg:
+        raise ValueError(f"controller {name!r} needs an argument after '{key}:' (e.g. {key}:PATH.zip)")
+    if not entry.takes_argument and sep:
+        raise ValueError(f"controller {base!r} takes no argument, got {name!r}")
+    return key, (arg if sep else None)
+
+
+def check_controller(name: str) -> None:
+    """ValueError listing the valid names unless ``name`` resolves (cheap: nothing is built;
+    an entry's own ``check`` validates its argument, e.g. that a model file exists)."""
+    key, arg = split_name(name)
+    entry = _load(key)
+    if arg is not None and entry.check is not None:
+        try:
+            entry.check(arg)
+        except ValueError as exc:
+            raise ValueError(f"controller {name!r}: {exc}") from None
+
+
+def fingerprint(name: str) -> str:
+    """What identifies the controller's behaviour for resuming: the name, plus what the entry
+    says identifies its argument (a model file's content hash: a retrained ``ppo:model.zip``
+    must not reuse the old results)."""
+    key, arg = split_name(name)
+    entry = _load(key)
+    if arg is None:
+        return key
+    return f"{key}:{entry.fingerprint(arg)}" if entry.fingerprint is not None else f"{key}:{arg}"
+
+
+def resolve(name: str) -> PolicyFactory:
+    """The factory ``env -> policy`` of a controller name (see the module docstring)."""
+    check_controller(name)
+    key, arg = split_name(name)
+    entry = _load(key)
+    if arg is None:
+        return entry.factory
+    return lambda env: entry.factory(env, arg)
+
+
+def display_name(name: str) -> str:
+    """Table name: the entry's display name (the paper's spelling for ours); for an entry with an
+    argument, ``PPO (model stem)``; a name that is not registered prints as it is."""
+    base, sep, arg = name.partition(":")
+    key = base.lower() if sep else base
+    if key not in _entry_points():
+        return name
+    entry = _load(key)
+    shown = entry.display_name or key
+    return f"{shown} ({Path(arg).stem})" if sep and arg else shown
