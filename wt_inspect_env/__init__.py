@@ -19,4 +19,5 @@ ENV_IDS = {
 for _env_id, _task in ENV_IDS.items():
     if _env_id not in registry:
         register(id=_env_id, entry_point="wt_inspect_env.env:WindTurbineInspectionEnv",
+                 vector_entry_point="wt_inspect_env.vector:WindTurbineInspectionVectorEnv",
                  kwargs={"task": _task})

@@ -140,32 +140,44 @@ class GimbalCamera:
         is tipping towards.)
         """
         try:
-            px, py, pz = (float(v) for v in position)
-            qx, qy, qz, qw = (float(v) for v in quaternion)
+            pos = np.asarray(position, dtype=float).reshape(1, 3)
+            quat = np.asarray(quaternion, dtype=float).reshape(1, 4)
         except (TypeError, ValueError):
             check_array("camera position", position, (3,))
             check_array("camera quaternion", quaternion, (4,))
             raise
-        nq = math.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
-        if not math.isfinite(px + py + pz + nq):
+        if not np.isfinite(pos).all() or not np.isfinite(quat).all():
             check_array("camera position", position, (3,))
             check_array("camera quaternion", quaternion, (4,))
-        if nq < 1e-9:
+        if float(quat[0] @ quat[0]) < 1e-18:
             raise ValueError(f"camera quaternion must be non-zero, got {quaternion!r}")
+        origins, Rs = self.poses(pos, quat)
+        return origins[0], Rs[0]
+
+    def poses(self, positions: np.ndarray, quaternions: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`pose` for K drones at once: ``positions`` (K, 3), ``quaternions`` (K, 4) (finite,
+        non-zero; not checked here) -> optical centres (K, 3) and ``R_world_from_cam`` (K, 3, 3).
+
+        Element-wise operations only (and ``math.hypot`` per camera), so a camera's pose is the
+        same alone or in a batch - the vector environment relies on it.
+        """
+        px, py, pz = positions[:, 0], positions[:, 1], positions[:, 2]
+        qx, qy, qz, qw = quaternions[:, 0], quaternions[:, 1], quaternions[:, 2], quaternions[:, 3]
+        nq = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
         qx, qy, qz, qw = qx / nq, qy / nq, qz / nq, qw / nq
-        # Body-to-world rotation (same formula as dynamics.quat_to_rotmat_np, written out for speed).
+        # Body-to-world rotation (same formula as dynamics.quat_to_rotmat_np).
         r00 = 1 - 2 * (qy * qy + qz * qz); r01 = 2 * (qx * qy - qw * qz); r02 = 2 * (qx * qz + qw * qy)
         r10 = 2 * (qx * qy + qw * qz); r11 = 1 - 2 * (qx * qx + qz * qz); r12 = 2 * (qy * qz - qw * qx)
         r20 = 2 * (qx * qz - qw * qy); r21 = 2 * (qy * qz + qw * qx); r22 = 1 - 2 * (qx * qx + qy * qy)
         ox, oy, oz = self._offset_xyz
-        origin = np.array([px + r00 * ox + r01 * oy + r02 * oz,
-                           py + r10 * ox + r11 * oy + r12 * oz,
-                           pz + r20 * ox + r21 * oy + r22 * oz])
-        hx, hy = r00, r10
-        if hx * hx + hy * hy < 1e-12:  # nose vertical: fall back to the body z axis' projection
-            s = -1.0 if r20 > 0 else 1.0
-            hx, hy = s * r02, s * r12
-        return origin, self._rotation_from_heading(hx, hy)
+        origins = np.stack([px + r00 * ox + r01 * oy + r02 * oz,
+                            py + r10 * ox + r11 * oy + r12 * oz,
+                            pz + r20 * ox + r21 * oy + r22 * oz], axis=1)
+        vertical = r00 * r00 + r10 * r10 < 1e-12   # nose vertical: use the body z axis' projection
+        s = np.where(r20 > 0, -1.0, 1.0)
+        hx = np.where(vertical, s * r02, r00)
+        hy = np.where(vertical, s * r12, r10)
+        return origins, self._rotations_from_heading(hx, hy)
 
     def rotation_from_yaw(self, yaw: float) -> np.ndarray:
         """``R_world_from_cam`` for a gimbal yaw angle [rad] (0 looks along world +x)."""
@@ -173,17 +185,23 @@ class GimbalCamera:
         return self._rotation_from_heading(math.cos(yaw), math.sin(yaw))
 
     def _rotation_from_heading(self, hx: float, hy: float) -> np.ndarray:
-        n = math.hypot(hx, hy)
+        return self._rotations_from_heading(np.array([hx], dtype=float), np.array([hy], dtype=float))[0]
+
+    def _rotations_from_heading(self, hx: np.ndarray, hy: np.ndarray) -> np.ndarray:
+        """(K, 3, 3) camera rotations: optical axis along heading (hx, hy), tilted by the mount pitch."""
+        n = np.array([math.hypot(a, b) for a, b in zip(hx.tolist(), hy.tolist())])
         cy, sy = hx / n, hy / n
         ct, st = self._cos_tilt, self._sin_tilt
-        forward = (ct * cy, ct * sy, st)
-        right = (sy, -cy, 0.0)
-        down = (forward[1] * right[2] - forward[2] * right[1],
-                forward[2] * right[0] - forward[0] * right[2],
-                forward[0] * right[1] - forward[1] * right[0])
-        return np.array([[right[0], down[0], forward[0]],
-                         [right[1], down[1], forward[1]],
-                         [right[2], down[2], forward[2]]])
+        f0, f1, f2 = ct * cy, ct * sy, np.full(len(n), st)
+        r0, r1, r2 = sy, -cy, 0.0
+        d0 = f1 * r2 - f2 * r1
+        d1 = f2 * r0 - f0 * r2
+        d2 = f0 * r1 - f1 * r0
+        R = np.empty((len(n), 3, 3))
+        R[:, 0, 0], R[:, 0, 1], R[:, 0, 2] = r0, d0, f0
+        R[:, 1, 0], R[:, 1, 1], R[:, 1, 2] = r1, d1, f1
+        R[:, 2, 0], R[:, 2, 1], R[:, 2, 2] = r2, d2, f2
+        return R
 
     def project(self, points_world, origin, R) -> tuple[np.ndarray, np.ndarray]:
         """Pixel coordinates ``(..., 2)`` and depth along the optical axis ``(...)`` of world points

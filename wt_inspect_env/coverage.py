@@ -203,50 +203,77 @@ class TriangleVisibility:
         self.vertices = v
         self.normals = n / norm[:, None]
         self.centroids = v.mean(axis=1)
-        # n.c and |c|^2 let the cull use one (2M, 3) @ (3,) product per frame.
-        self._stack = np.concatenate([self.normals, self.centroids])
+        # n.c and |c|^2 are per-mesh constants of the cull.
         self._n_dot_c = np.einsum("ij,ij->i", self.normals, self.centroids)
         self._c_sq = np.einsum("ij,ij->i", self.centroids, self.centroids)
 
     def candidates(self, origin: np.ndarray) -> np.ndarray:
         """Indices passing the cheap tests (facing, incidence, centroid range)."""
+        o = np.asarray(origin, dtype=float).reshape(1, 3)
+        return np.flatnonzero(self._cull(o)[0])
+
+    def _cull(self, origins: np.ndarray) -> np.ndarray:
+        """``bool (K, M)``: the cheap tests for K optical centres at once.
+
+        Written as explicit products and sums (no matrix product, whose BLAS kernel may reorder or
+        fuse them), so a camera's result does not depend on how many are culled together - the
+        vector environment culls all its drones in one call and must agree bit for bit.
+        """
         cam = self.camera
-        o = np.asarray(origin, dtype=float)
-        prod = self._stack @ o
-        m = len(self.vertices)
-        n_dot_v = prod[:m] - self._n_dot_c                      # n . (o - c)
-        dist_sq = self._c_sq - 2.0 * prod[m:] + float(o @ o)    # |o - c|^2
+        ox, oy, oz = origins[:, 0:1], origins[:, 1:2], origins[:, 2:3]
+        nrm, c = self.normals, self.centroids
+        n_dot_v = (nrm[:, 0] * ox + nrm[:, 1] * oy + nrm[:, 2] * oz) - self._n_dot_c      # n . (o - c)
+        c_dot_o = c[:, 0] * ox + c[:, 1] * oy + c[:, 2] * oz
+        dist_sq = (self._c_sq - 2.0 * c_dot_o) + (ox * ox + oy * oy + oz * oz)         # |o - c|^2
         cos2 = cam.cos_max_incidence * cam.cos_max_incidence
-        ok = (n_dot_v > 0.0) & (n_dot_v * n_dot_v > cos2 * dist_sq) & (dist_sq <= cam.max_range * cam.max_range)
-        return np.flatnonzero(ok)
+        return (n_dot_v > 0.0) & (n_dot_v * n_dot_v > cos2 * dist_sq) & (dist_sq <= cam.max_range * cam.max_range)
 
     def visible_indices(self, origin, R) -> np.ndarray:
         """Sorted indices of the triangles seen from a camera at ``origin`` with ``R_world_from_cam``."""
-        cam = self.camera
         o = np.asarray(origin, dtype=float)
-        idx = self.candidates(o)
-        if len(idx) == 0:
-            return idx
-        rel = self.vertices[idx] - o                                    # (k, 3, 3)
-        # Camera coordinates with x, y scaled by the half-FOV tangents: a point in front of the
-        # camera projects inside the image (0 <= u <= W, 0 <= v <= H, principal point at the
-        # centre) exactly when max(|x'|, |y'|) <= z; no division needed.
-        pc = rel @ (np.asarray(R, dtype=float) * self._fov_scale)
-        z = pc[..., 2]
-        inside = (np.abs(pc[..., :2]).max(axis=-1) <= z) & (z > 0.0)
-        inside &= np.einsum("kvi,kvi->kv", rel, rel) <= cam.max_range * cam.max_range
-        idx = idx[inside.all(axis=1)]
+        idx = self.in_view_batch(o.reshape(1, 3), np.asarray(R, dtype=float).reshape(1, 3, 3))[0]
         if self.occluder is None or self.occlusion_samples == "none" or len(idx) == 0:
             return idx
         return idx[~self._occluded(o, idx)]
 
-    def _occluded(self, o: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    def in_view_batch(self, origins: np.ndarray, Rs: np.ndarray) -> list[np.ndarray]:
+        """Per camera (K of them: ``origins`` (K, 3), ``Rs`` (K, 3, 3)), the sorted indices of the
+        triangles that pass every test but occlusion (see the module docstring).
+
+        In camera coordinates with x, y scaled by the half-FOV tangents, a point in front of the
+        camera projects inside the image (0 <= u <= W, 0 <= v <= H, principal point at the centre)
+        exactly when max(|x'|, |y'|) <= z; no division needed. All products are explicit (see
+        :meth:`_cull`), so one camera's answer is the same alone or in a batch.
+        """
+        cam = self.camera
+        k_cams, tri = np.nonzero(self._cull(origins))        # pairs, grouped by camera, sorted
+        if len(tri) == 0:
+            return [tri[:0] for _ in range(len(origins))]
+        rel = self.vertices[tri] - origins[k_cams][:, None, :]              # (P, 3, 3) vertex - o
+        S = (Rs * self._fov_scale)[k_cams]                                   # (P, 3, 3)
+        r0, r1, r2 = rel[..., 0], rel[..., 1], rel[..., 2]                   # (P, 3) per vertex
+        pc = [r0 * S[:, None, 0, j] + r1 * S[:, None, 1, j] + r2 * S[:, None, 2, j] for j in range(3)]
+        z = pc[2]
+        inside = (np.maximum(np.abs(pc[0]), np.abs(pc[1])) <= z) & (z > 0.0)
+        inside &= (r0 * r0 + r1 * r1 + r2 * r2) <= cam.max_range * cam.max_range
+        keep = inside.all(axis=1)
+        k_cams, tri = k_cams[keep], tri[keep]
+        bounds = np.searchsorted(k_cams, np.arange(len(origins) + 1))
+        return [tri[bounds[j]:bounds[j + 1]] for j in range(len(origins))]
+
+    def occlusion_targets(self, idx: np.ndarray) -> np.ndarray:
+        """Ray targets of triangles ``idx``: ``(k, 3)`` (centroid samples) or ``(k, 4, 3)``."""
         lift = self.occlusion_eps * self.normals[idx]
         c = self.centroids[idx]
         if self.occlusion_samples == "centroid":
-            return self.occluder.occluded(o, c + lift)
+            return c + lift
         pulled = self.vertices[idx] + _VERTEX_PULL * (c[:, None, :] - self.vertices[idx])
-        targets = np.concatenate([(c + lift)[:, None, :], pulled + lift[:, None, :]], axis=1)   # (k, 4, 3)
+        return np.concatenate([(c + lift)[:, None, :], pulled + lift[:, None, :]], axis=1)
+
+    def _occluded(self, o: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        targets = self.occlusion_targets(idx)
+        if targets.ndim == 2:
+            return self.occluder.occluded(o, targets)
         return self.occluder.occluded(o, targets.reshape(-1, 3)).reshape(-1, 4).any(axis=1)
 
     def visible(self, origin, R) -> np.ndarray:

@@ -28,19 +28,27 @@ from gymnasium import spaces
 
 from .camera import GimbalCamera
 from .coverage import CoverageTracker, PyBulletOccluder, TriangleVisibility
-from .dynamics import quat_to_rotmat_np, yaw_to_quat
+from .dynamics import yaw_to_quat
 from .env_config import EnvConfig
 from .metrics import MetricAccumulator, MetricsConfig
 from .mission import Mission, build_mission
 from .reference import InspectionReference, ReferenceConfig, ReferenceSample
 from .sim import RAY_MASK_WITHOUT_DRONE, QuadrotorSim, SimConfig
 from .spaces import OBS_SHAPES, ActionScaling
+from .step_terms import observations, reward_terms
 from .validation import check_array
 from .wind import make_wind
 
 
 def _box(shape: tuple[int, ...], lo: float = -np.inf, hi: float = np.inf) -> spaces.Box:
     return spaces.Box(low=lo, high=hi, shape=shape, dtype=np.float32)
+
+
+def observation_space() -> spaces.Dict:
+    """The Dict observation space of one drone (see :mod:`~wt_inspect_env.spaces`)."""
+    bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
+              "progress": (0.0, 1.0)}
+    return spaces.Dict({k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()})
 
 
 class WindTurbineInspectionEnv(gym.Env):
@@ -84,10 +92,7 @@ class WindTurbineInspectionEnv(gym.Env):
         self._vol_lo, self._vol_hi = lo, hi
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
-                  "progress": (0.0, 1.0)}
-        self.observation_space = spaces.Dict(
-            {k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()})
+        self.observation_space = observation_space()
         self._hover = self.scaling.hover_action()
         self._sample: ReferenceSample | None = None
         self._steps = 0
@@ -176,42 +181,18 @@ class WindTurbineInspectionEnv(gym.Env):
 
     # ------------------------------------------------------------------ hooks
     def _observation(self, safe: bool = False) -> dict[str, np.ndarray]:
-        state = np.nan_to_num(self.sim.state, nan=0.0, posinf=0.0, neginf=0.0) if safe else self.sim.state
-        rates = np.nan_to_num(self.sim.body_rates) if safe else self.sim.body_rates
         s = self._sample
-        q = state[6:10]
-        nq = float(np.linalg.norm(q))
-        q = q / nq if nq > 1e-9 else np.array([0.0, 0.0, 0.0, 1.0])
-        f32 = np.float32
-        return {
-            "position": state[0:3].astype(f32), "velocity_body": state[3:6].astype(f32),
-            "quaternion": np.clip(q, -1.0, 1.0).astype(f32), "body_rates": rates.astype(f32),
-            "point": s.point.astype(f32), "normal": np.clip(s.normal, -1.0, 1.0).astype(f32),
-            "point_velocity": s.velocity.astype(f32),
-            "coverage": np.array([min(1.0, self.coverage.coverage)], dtype=f32),
-            "progress": np.array([min(1.0, max(0.0, s.progress))], dtype=f32),
-        }
+        obs = observations(self.sim.state[None], self.sim.body_rates[None], s.point[None], s.normal[None],
+                           s.velocity[None], np.array([self.coverage.coverage]), np.array([s.progress]),
+                           safe=np.array([safe]))
+        return {k: v[0] for k, v in obs.items()}
 
     def _reward(self, action: np.ndarray, state: np.ndarray, n_new: int, crashed: bool
                 ) -> tuple[float, dict[str, float]]:
-        w = self.config.reward
-        dt = self.dt
-        if not np.isfinite(state).all():
-            return -w.crash, {"coverage": 0.0, "distance": 0.0, "centering": 0.0, "effort": 0.0,
-                              "crash": -w.crash}
-        e = float(np.linalg.norm(state[0:3] - self._sample.ideal_position))
-        a = self._sample.point - state[0:3]
-        axy = math.hypot(a[0], a[1])
-        fwd = quat_to_rotmat_np(state[6:10])[:, 0]
-        h = (fwd[0] * a[0] + fwd[1] * a[1]) / axy if axy > 1e-9 else 0.0
-        terms = {
-            "coverage": w.coverage * n_new / self.n_triangles,
-            "distance": w.distance * dt * math.exp(-0.5 * (e / w.distance_scale) ** 2),
-            "centering": w.centering * dt * h,
-            "effort": -w.effort * dt * float(np.sum((action - self._hover) ** 2)),
-            "crash": -w.crash if crashed else 0.0,
-        }
-        return sum(terms.values()), terms
+        reward, terms = reward_terms(self.config.reward, self.dt, self.n_triangles, action[None], self._hover,
+                                     state[None], self._sample.ideal_position[None], self._sample.point[None],
+                                     np.array([n_new]), np.array([crashed]))
+        return float(reward[0]), {k: float(v[0]) for k, v in terms.items()}
 
     def _termination(self, state: np.ndarray, finite: bool, collision: bool) -> str | None:
         if not finite:

@@ -239,7 +239,8 @@ class InspectionReference:
                 check_array("drone_position", drone_position, (3,))
                 raise
             q = self._ideal
-            lag = math.sqrt((x0 - q[0]) ** 2 + (x1 - q[1]) ** 2 + (x2 - q[2]) ** 2)
+            e0, e1, e2 = x0 - q[0], x1 - q[1], x2 - q[2]
+            lag = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)   # products, as the batched reference
             if not math.isfinite(lag):
                 check_array("drone_position", drone_position, (3,))
         elif self._closed:

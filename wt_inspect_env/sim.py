@@ -379,14 +379,20 @@ class QuadrotorSim:
     @property
     def state(self) -> np.ndarray:
         """(10,) [position, body velocity, quaternion (x, y, z, w)], the model's convention."""
-        R = np.array(p.getMatrixFromQuaternion(self._quat)).reshape(3, 3)
-        return np.concatenate([self._pos, R.T @ np.asarray(self._vel), self._quat])
+        R = p.getMatrixFromQuaternion(self._quat)
+        vx, vy, vz = self._vel
+        # R^T v written out (as the rate loop does): no BLAS kernel to reorder the sums, so the
+        # batched simulator, which does the same over all drones, agrees bit for bit.
+        return np.array([*self._pos, R[0] * vx + R[3] * vy + R[6] * vz, R[1] * vx + R[4] * vy + R[7] * vz,
+                         R[2] * vx + R[5] * vy + R[8] * vz, *self._quat])
 
     @property
     def body_rates(self) -> np.ndarray:
         """(3,) body angular velocity (p, q, r) [rad/s]."""
-        R = np.array(p.getMatrixFromQuaternion(self._quat)).reshape(3, 3)
-        return R.T @ np.asarray(self._omega)
+        R = p.getMatrixFromQuaternion(self._quat)
+        ox, oy, oz = self._omega
+        return np.array([R[0] * ox + R[3] * oy + R[6] * oz, R[1] * ox + R[4] * oy + R[7] * oz,
+                         R[2] * ox + R[5] * oy + R[8] * oz])
 
     @property
     def world_velocity(self) -> np.ndarray:
