@@ -22,6 +22,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
     "coverage": ("wt_inspect_env.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
     "env": ("wt_inspect_env.commands.bench_env", "environment steps per second (full mission)"),
+    "vecenv": ("wt_inspect_env.commands.bench_vecenv", "vector env aggregate steps per second vs the single env"),
     "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
     "train": ("agents.bench", "training throughput with 2 subprocess environments"),

@@ -448,6 +448,7 @@ WIND_TYPES: dict[str, type[WindField]] = {
     "shear": ShearWind,
     "sum": SumWind,
 }
+_BUILTIN_FIELDS = (ConstantWind, GustWind, DrydenWind, ShearWind, SumWind)
 _WIND_OPTIONS: dict[str, tuple[str, ...]] = {
     "none": ("seed",),
     "constant": ("velocity", "seed"),
@@ -457,6 +458,29 @@ _WIND_OPTIONS: dict[str, tuple[str, ...]] = {
     "shear": ("ref_speed", "ref_height", "alpha", "direction", "ground_height", "seed"),
     "sum": ("components", "seed"),
 }
+
+
+def wind_velocities(fields: "list[WindField]", times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    """(K, 3) velocities of K fields, field ``j`` at its own time ``times[j]`` and position
+    ``positions[j]`` - what a batch of simulated drones needs once per control step.
+
+    Each value is exactly ``fields[j](times[j], positions[j:j+1])[0]``: the paper's gusts (the
+    common case) are evaluated together, every other field on its own; the built-in fields skip
+    the input validation of ``__call__`` (the simulator's positions are finite float arrays and
+    their outputs are), user callables keep it.
+    """
+    out = np.empty((len(fields), 3))
+    gusts = [j for j, f in enumerate(fields) if type(f) is GustWind]
+    if gusts:
+        speeds = np.array([fields[j].speed(float(times[j])) for j in gusts])
+        out[gusts] = speeds[:, None] * np.array([fields[j].direction for j in gusts])
+    for j, f in enumerate(fields):
+        if type(f) is GustWind:
+            continue
+        t, pos = float(times[j]), positions[j:j + 1]
+        trusted = type(f) in _BUILTIN_FIELDS and bool(np.isfinite(pos).all())
+        out[j] = (f._velocity(t, pos) if trusted else f(t, pos))[0]
+    return out
 
 
 def make_wind(spec: "WindField | Callable | Mapping[str, Any] | str | None") -> WindField:

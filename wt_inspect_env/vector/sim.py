@@ -28,6 +28,9 @@ One ``stepSimulation`` and one ``getContactPoints`` per sub-step serve all drone
 from __future__ import annotations
 
 import math
+from itertools import chain
+
+_flat = chain.from_iterable
 from typing import Any, Sequence
 
 import numpy as np
@@ -37,10 +40,9 @@ from ..quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams
 from ..rate_control import Mixer, RateController, RateGains
 from ..sim import DRONE_COLLISION_GROUP, SimConfig, _mesh_arrays
 from ..validation import check_array
-from ..wind import ConstantWind, DrydenWind, GustWind, ShearWind, WindField
+from ..wind import WindField, wind_velocities
 
 GROUND_GROUP = 1
-_BUILTIN_WINDS = (ConstantWind, GustWind, DrydenWind, ShearWind)
 _GEOMETRY_GROUP0 = 16        # geometry g is in group 16 << g (phase 1, phase 2, ...)
 _MAX_GEOMETRIES = 8
 
@@ -91,15 +93,15 @@ class BatchedQuadrotorSim:
         if len(winds) != n:
             raise ValueError(f"winds must hold one field per drone ({n}), got {len(winds)}")
         self.winds = winds
+        self._varying = [i for i, w in enumerate(winds) if w is not None and not w.is_constant]
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
         self._n_sub = config.substeps
         gains = config.rate_gains or RateGains.for_params(params)
         # The scalar controller is the source of the folded gains (and of the reference semantics).
         ref = RateController(gains, params.inertia, self.physics_dt)
-        self._kp, self._kd, self._ki_dt = (np.array(v) for v in (ref._kp, ref._kd, ref._ki_dt))
-        self._ilim = np.array(gains.integral_limit, dtype=float)
-        self._J = np.array(ref._J)
+        self._kp, self._kd, self._ki_dt, self._J = ref._kp, ref._kd, ref._ki_dt, ref._J
+        self._ilim = tuple(float(x) for x in gains.integral_limit)
         self._d_beta = ref._beta
         self.mixer = Mixer(params)
         B = self.mixer
@@ -123,8 +125,9 @@ class BatchedQuadrotorSim:
         self.pos, self.vel, self.omega = z.copy(), z.copy(), z.copy()
         self.quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
         self.f = np.full((n, 4), params.weight / 4.0)
-        self.i_term, self.d_term, self.prev_rates = z.copy(), z.copy(), z.copy()
-        self.saturation = np.zeros((n, 3), dtype=np.int64)
+        # Rate-loop state axis-major (3, n), so each axis is one contiguous row for the NumPy ops.
+        self.i_term, self.d_term, self.prev_rates = np.zeros((3, n)), np.zeros((3, n)), np.zeros((3, n))
+        self.saturation = np.zeros((3, n), dtype=np.int64)
         self.steps = np.zeros(n, dtype=np.int64)
         self.in_collision = np.zeros(n, dtype=bool)
         self.last_wind = z.copy()
@@ -226,8 +229,8 @@ class BatchedQuadrotorSim:
         vel, omega = p.getBaseVelocity(body, physicsClientId=cid)
         self.pos[i], self.quat[i], self.vel[i], self.omega[i] = pos, quat, vel, omega
         self.steps[i] = 0
-        self.i_term[i] = self.d_term[i] = self.prev_rates[i] = 0.0
-        self.saturation[i] = 0
+        self.i_term[:, i] = self.d_term[:, i] = self.prev_rates[:, i] = 0.0
+        self.saturation[:, i] = 0
         self.f[i] = self.params.weight / 4.0
         self.in_collision[i] = False
         self.last_wind[i] = self._wind_at(i, 0.0)
@@ -271,15 +274,10 @@ class BatchedQuadrotorSim:
     def step(self, commands: np.ndarray) -> None:
         """Hold ``commands`` (n, 4) = [p, q, r, T] per drone (finite, T >= 0) for one control period."""
         n = self.n
-        finite = np.isfinite(self.pos).all(axis=1)
-        for i in range(n):   # per drone: each wind field is its own seeded object (see module doc)
-            w = self.winds[i]
-            if w is not None and not w.is_constant:
-                t, pos_i = float(self.steps[i] * self.dt), self.pos[i:i + 1]
-                # The built-in fields return finite (1, 3) float arrays for finite positions, so
-                # their validating __call__ (half the cost) is skipped; user callables keep it.
-                fast = type(w) in _BUILTIN_WINDS and finite[i]
-                self.last_wind[i] = (w._velocity(t, pos_i) if fast else w(t, pos_i))[0]
+        if self._varying:
+            self.last_wind[self._varying] = wind_velocities([self.winds[i] for i in self._varying],
+                                                            self.steps[self._varying] * self.dt,
+                                                            self.pos[self._varying])
         pc, qc, rc, T = (np.ascontiguousarray(commands[:, k]) for k in range(4))
         wx, wy, wz = self.last_wind[:, 0], self.last_wind[:, 1], self.last_wind[:, 2]
         cid = self._client
@@ -312,12 +310,12 @@ class BatchedQuadrotorSim:
             c3 = T * bt[3] + tx * bx[3] + ty * by[3] + tz * bz[3]
             ok = ((f_lo <= c0) & (c0 <= f_hi) & (f_lo <= c1) & (c1 <= f_hi) & (f_lo <= c2) & (c2 <= f_hi)
                   & (f_lo <= c3) & (c3 <= f_hi))
-            self.saturation[ok] = 0
+            self.saturation[:, ok] = 0
             if not ok.all():   # the rare saturated drones take the scalar desaturating mixer
                 mixer = self.mixer
                 for i in np.flatnonzero(~ok).tolist():
                     c0[i], c1[i], c2[i], c3[i] = mixer.mix(float(T[i]), float(tx[i]), float(ty[i]), float(tz[i]))
-                    self.saturation[i] = mixer.saturation
+                    self.saturation[:, i] = mixer.saturation
             g0 = f0 + beta * (c0 - f0)
             g1 = f1 + beta * (c1 - f1)
             g2 = f2 + beta * (c2 - f2)
@@ -345,12 +343,9 @@ class BatchedQuadrotorSim:
                 applyForce(b, -1, fo, zero, LINK, physicsClientId=cid)
                 applyTorque(b, -1, to, LINK, physicsClientId=cid)
             stepSim(physicsClientId=cid)
-            poses = [getPose(b, physicsClientId=cid) for b in bodies]
-            vels = [getVel(b, physicsClientId=cid) for b in bodies]
-            pos = np.array([q[0] for q in poses])
-            quat = np.array([q[1] for q in poses])
-            vel = np.array([v[0] for v in vels])
-            omega = np.array([v[1] for v in vels])
+            states = [(getPose(b, physicsClientId=cid), getVel(b, physicsClientId=cid)) for b in bodies]
+            flat = np.fromiter(_flat(_flat(_flat(states))), float, 13 * n).reshape(n, 13)
+            pos, quat, vel, omega = flat[:, 0:3], flat[:, 3:7], flat[:, 7:10], flat[:, 10:13]
             cps = getContacts(physicsClientId=cid)
             if cps:
                 self._mark_contacts(cps, touched)
@@ -367,16 +362,16 @@ class BatchedQuadrotorSim:
         meas = (pm, qm, rm)
         out = []
         for k in range(3):
-            dk = d[:, k] + beta * ((meas[k] - prev[:, k]) - d[:, k])
-            d[:, k] = dk
-            prev[:, k] = meas[k]
-            sk = self.saturation[:, k]
+            dk = d[k] + beta * ((meas[k] - prev[k]) - d[k])
+            d[k] = dk
+            prev[k] = meas[k]
+            sk = self.saturation[k]
             frozen = (sk != 0) & ((e[k] > 0) == (sk > 0))
-            ik = it[:, k] + self._ki_dt[k] * e[k]
+            ik = it[k] + self._ki_dt[k] * e[k]
             lim = self._ilim[k]
             ik = np.where(ik > lim, lim, np.where(ik < -lim, -lim, ik))
-            it[:, k] = np.where(frozen, it[:, k], ik)
-            out.append(self._kp[k] * e[k] + self._J[k] * it[:, k] - self._kd[k] * dk)
+            it[k] = np.where(frozen, it[k], ik)
+            out.append(self._kp[k] * e[k] + self._J[k] * it[k] - self._kd[k] * dk)
         return out[0], out[1], out[2]
 
     _CONTACT_TOL = 1e-3   # as QuadrotorSim: Bullet keeps points a little beyond touching

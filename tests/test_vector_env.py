@@ -1,0 +1,200 @@
+"""The native vector environment: drone i is the single environment seeded s + i, bit for bit."""
+from __future__ import annotations
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pybullet as p
+import pytest
+from gymnasium.vector import AutoresetMode
+
+import wt_inspect_env  # noqa: F401 - registers the ids
+from wt_inspect_env.vector import WindTurbineInspectionVectorEnv
+
+ENV = "WindTurbineInspection-v0"
+
+
+def _make_vec(n: int, env_id: str = ENV, **options):
+    return gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", **options)
+
+
+def _same(a, b) -> bool:
+    return a == b or (isinstance(a, float) and math.isnan(a) and math.isnan(b))
+
+
+def _run_side_by_side(n: int, steps: int, seed: int = 3, env_id: str = ENV, winds=None, action_sd: float = 0.05,
+                      **options) -> dict:
+    """Step the vector env and n single envs with the same random actions; assert equality at
+    every step. Returns counters of what was exercised (resets, max phase)."""
+    venv = _make_vec(n, env_id, winds=winds, **options) if winds else _make_vec(n, env_id, **options)
+    singles = [gym.make(env_id, **options, **({"wind": winds[i]} if winds else {})).unwrapped for i in range(n)]
+    rng = np.random.default_rng(1)
+    seen = {"resets": 0, "max_phase": 1, "frames_with_new": 0}
+    try:
+        vobs, _ = venv.reset(seed=seed)
+        for i, env in enumerate(singles):
+            obs, _ = env.reset(seed=seed + i)
+            for k in obs:
+                assert np.array_equal(vobs[k][i], obs[k]), (k, i)
+        hover = singles[0].scaling.hover_action()
+        for t in range(steps):
+            act = np.clip(hover + rng.normal(0.0, action_sd, (n, 4)), -1, 1).astype(np.float32)
+            vobs, vrew, vterm, vtrunc, vinfo = venv.step(act)
+            seen["max_phase"] = max(seen["max_phase"], int(vinfo["phase"].max()))
+            for i, env in enumerate(singles):
+                obs, rew, term, trunc, info = env.step(act[i])
+                assert vrew[i] == rew, (t, i, vrew[i], rew)
+                assert (vterm[i], vtrunc[i]) == (term, trunc), (t, i)
+                for k, v in info["reward_terms"].items():
+                    assert vinfo["reward_terms"][k][i] == v, (t, i, k)
+                if info["reward_terms"]["coverage"] > 0:
+                    seen["frames_with_new"] += 1
+                if term or trunc:
+                    seen["resets"] += 1
+                    assert vinfo["_final_obs"][i] and vinfo["_final_info"][i]
+                    for k in obs:
+                        assert np.array_equal(vinfo["final_obs"][i][k], obs[k]), (t, i, k)
+                    for k, v in info["metrics"].items():
+                        assert _same(float(vinfo["final_info"]["metrics"][k][i]), v), (t, i, k)
+                    assert vinfo["final_info"]["termination"][i] == (info["termination"] or None)
+                    obs, _ = env.reset()
+                else:
+                    vm = venv.unwrapped.metrics(i)
+                    if t % 50 == 0:
+                        for k, v in info["metrics"].items():
+                            assert _same(vm[k], v), (t, i, k)
+                    assert vinfo["coverage"][i] == info["coverage"]
+                for k in obs:
+                    assert np.array_equal(vobs[k][i], obs[k]), (t, i, k)
+    finally:
+        venv.close()
+        for env in singles:
+            env.close()
+    return seen
+
+
+@pytest.mark.parametrize("n", [1, 4, 16])
+def test_drone_i_is_the_single_env_seeded_s_plus_i_across_autoresets(n):
+    # start noise makes the drones differ; the 1.5 s limit forces autoresets mid-run
+    seen = _run_side_by_side(n, 260, start_noise=0.5, time_limit_s=1.5)
+    assert seen["resets"] >= n
+    assert seen["frames_with_new"] > 0
+
+
+@pytest.mark.slow
+def test_equivalence_through_the_rotor_turn():
+    # open-loop reference at 60 m/s: phase 1 ends after ~10 s, the rotor turns, phase 2 follows
+    seen = _run_side_by_side(2, 1700, wind="none", reference_mode="open_loop", reference_speed=60.0,
+                             start_noise=0.3, time_limit_s=16.0, action_sd=0.01)
+    assert seen["max_phase"] == 2
+
+
+def test_per_drone_winds_match_single_envs_with_those_winds():
+    winds = ["none", {"type": "gust", "mean_speed": 6.0}, {"type": "dryden", "mean_speed": 4.0}]
+    _run_side_by_side(3, 120, winds=winds, start_noise=0.2, time_limit_s=0.8)
+
+
+def test_surface_task_equivalence():
+    _run_side_by_side(3, 150, env_id="WindTurbineInspection-Surface-v0", start_progress=0.5, time_limit_s=1.0)
+
+
+def test_make_vec_metadata_spaces_and_seeded_determinism():
+    venv = _make_vec(3, start_noise=0.5)
+    try:
+        u = venv.unwrapped
+        assert isinstance(u, WindTurbineInspectionVectorEnv)
+        assert venv.metadata["autoreset_mode"] == AutoresetMode.SAME_STEP
+        assert venv.num_envs == 3
+        assert venv.single_observation_space == gym.make(ENV).observation_space
+        assert venv.action_space.shape == (3, 4)
+        obs, info = venv.reset(seed=11)
+        assert venv.observation_space.contains(obs)
+        act = np.tile(u.scaling.hover_action(), (3, 1))
+        first = [venv.step(act)[0]["position"].copy() for _ in range(5)]
+        assert venv.observation_space.contains(venv.step(act)[0])
+        # the three drones start apart (own seeds) ...
+        assert not np.array_equal(first[0][0], first[0][1])
+        # ... and the same seed replays exactly, another seed does not
+        venv.reset(seed=11)
+        again = [venv.step(act)[0]["position"].copy() for _ in range(5)]
+        assert all(np.array_equal(a, b) for a, b in zip(first, again))
+        venv.reset(seed=12)
+        assert not np.array_equal(venv.step(act)[0]["position"], first[0])
+        # a list of seeds seeds each drone
+        venv.reset(seed=[11, 12, 13])
+        assert np.array_equal(venv.step(act)[0]["position"], first[0])
+    finally:
+        venv.close()
+
+
+def test_close_disconnects_and_is_idempotent():
+    venv = _make_vec(2)
+    cid = venv.unwrapped.sim.client
+    venv.close()
+    venv.close()
+    assert not p.isConnected(physicsClientId=cid)
+
+
+@pytest.mark.parametrize("num_envs", [0, -2, 1.5, "2", True, None])
+def test_bad_num_envs(num_envs):
+    with pytest.raises(ValueError, match="num_envs"):
+        WindTurbineInspectionVectorEnv(num_envs=num_envs)
+
+
+def test_bad_per_drone_options():
+    with pytest.raises(ValueError, match="winds must be a list of 2"):
+        WindTurbineInspectionVectorEnv(num_envs=2, winds=["none"])
+    with pytest.raises(ValueError, match=r"winds\[1\]"):
+        WindTurbineInspectionVectorEnv(num_envs=2, winds=["none", "hurricane"])
+    with pytest.raises(ValueError, match="per-drone standoff"):
+        WindTurbineInspectionVectorEnv(num_envs=2, standoff=[6.0, 7.0])
+    with pytest.raises(ValueError, match="either wind"):
+        WindTurbineInspectionVectorEnv(num_envs=2, wind="none", winds=["none", "none"])
+
+
+def test_bad_actions_name_the_field():
+    venv = WindTurbineInspectionVectorEnv(num_envs=2)
+    try:
+        with pytest.raises(RuntimeError, match="reset"):
+            venv.step(np.zeros((2, 4)))
+        venv.reset(seed=0)
+        with pytest.raises(ValueError, match=r"shape \(2, 4\)"):
+            venv.step(np.zeros(4))
+        bad = np.zeros((2, 4))
+        bad[1, 2] = np.nan
+        with pytest.raises(ValueError, match=r"actions must be finite.*actions\[1\]"):
+            venv.step(bad)
+        bad[1, 2] = 1.5
+        with pytest.raises(ValueError, match=r"\[-1, 1\].*actions\[1\]"):
+            venv.step(bad)
+        with pytest.raises(ValueError, match="seed"):
+            venv.reset(seed=[1])
+        with pytest.raises(ValueError, match="options"):
+            venv.reset(options={"x": 1})
+    finally:
+        venv.close()
+
+
+def test_drones_do_not_collide_with_each_other_but_with_the_ground():
+    venv = WindTurbineInspectionVectorEnv(num_envs=2, wind="none")
+    try:
+        venv.reset(seed=0)
+        sim = venv.sim
+        # both drones in the same spot: no contact between them
+        state = np.zeros(10)
+        state[0:3] = sim.pos[0]
+        state[9] = 1.0
+        sim.reset_drone(1, state)
+        sim.reset_drone(0, state)
+        hover = np.tile([0.0, 0.0, 0.0, venv.params.weight], (2, 1))
+        sim.step(hover)
+        assert not sim.in_collision.any()
+        # drone 1 dropped onto the ground: it alone is in collision
+        low = state.copy()
+        low[0:3] = [-40.0, -40.0, venv.params.frame_height * 0.5]
+        sim.reset_drone(1, low)
+        sim.step(np.array([[0.0, 0.0, 0.0, venv.params.weight], [0.0, 0.0, 0.0, 0.0]]))
+        assert sim.in_collision.tolist() == [False, True]
+    finally:
+        venv.close()
