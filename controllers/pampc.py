@@ -53,21 +53,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 import casadi as ca
 import numpy as np
 
 from wt_inspect_env.camera import CameraConfig
-from wt_inspect_env.dynamics import NU, NX, quat_to_rotmat
-from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.dynamics import NX, quat_to_rotmat
 from wt_inspect_env.validation import check_positive
 
-from .rti import OCP, RTIOptions
-from .tracking import (CLOCK, N_TRACKING_PARAMS, NX_AUG, TrackingMPCPolicy, TrackingReference,
-                       augmented_dynamics, check_input_weights, hover_input, tracking_terms,
-                       validate_tracking_config, weight_tuple)
+from .rti import OCP
+from .rti_policy import LSQWeights, MPCConfig
+from .tracking import CLOCK, N_TRACKING_PARAMS, TrackingMPCPolicy, tracking_ocp
 
 N_PARAMS = N_TRACKING_PARAMS + 3
 STAGE_RESIDUAL_NAMES = ("px", "py", "pz", "vx", "vy", "vz", "qx", "qy", "hx", "hy", "sx", "sy",
@@ -76,7 +73,7 @@ TERMINAL_RESIDUAL_NAMES = STAGE_RESIDUAL_NAMES[:12]
 
 
 @dataclass(frozen=True)
-class PAMPCWeights:
+class PAMPCWeights(LSQWeights):
     """Diagonal least-squares weights of the PAMPC (defaults: the authors' file, see the module
     docstring). ``perception`` weighs the normalised image coordinates (x right, y down)."""
 
@@ -86,68 +83,38 @@ class PAMPCWeights:
     heading: float = 0.0
     perception: tuple[float, ...] = (0.05, 0.0)
     inputs: tuple[float, ...] = (3.0, 3.0, 1.0, 0.035)
-    terminal_factor: float = 1.5
 
-    def __post_init__(self) -> None:
-        for name, n in (("position", 3), ("velocity", 3), ("tilt", 2), ("perception", 2),
-                        ("inputs", 4)):
-            object.__setattr__(self, name, weight_tuple(f"weights.{name}", getattr(self, name), n))
-        check_input_weights("weights.inputs", self.inputs)
-        for name in ("heading", "terminal_factor"):
-            object.__setattr__(self, name, check_positive(f"weights.{name}", getattr(self, name),
-                                                          allow_zero=True))
+    TERMINAL: ClassVar = (("position", 3), ("velocity", 3), ("tilt", 2), ("heading", 2), ("perception", 2))
+    STAGE: ClassVar = TERMINAL + (("inputs", 4),)
 
     @classmethod
     def authors(cls) -> "PAMPCWeights":
         return cls()
 
-    def _state_part(self) -> np.ndarray:
-        return np.array([*self.position, *self.velocity, *self.tilt, self.heading, self.heading,
-                         *self.perception])
-
-    def stage_vector(self) -> np.ndarray:
-        return np.concatenate([self._state_part(), self.inputs])
-
-    def terminal_vector(self) -> np.ndarray:
-        return self.terminal_factor * self._state_part()
-
 
 WEIGHT_SETS: dict[str, PAMPCWeights] = {"authors": PAMPCWeights.authors()}
 
 
-def _default_params() -> QuadrotorParams:
-    return get_preset("matrice100")
-
-
 @dataclass(frozen=True)
-class PAMPCConfig:
-    """Everything that defines a PAMPC instance (fields as :class:`~controllers.nmpc.NMPCConfig`,
-    plus the camera mounting and the projection guard ``image_plane_guard`` [m]); ``control_dt``
-    defaults to the environment's 0.01 s, ``solver`` to HPIPM's ``speed_abs`` (strictly convex QP
-    with input bounds only, as for the NMPC)."""
+class PAMPCConfig(MPCConfig):
+    """Everything that defines a PAMPC instance (the common fields: :class:`MPCConfig`), plus the
+    camera mounting and the projection guard ``image_plane_guard`` [m]; stages of 0.1 s and the
+    environment's 0.01 s ``control_dt`` by default."""
 
-    params: QuadrotorParams = field(default_factory=_default_params)
+    WEIGHTS: ClassVar[type] = PAMPCWeights
+    WEIGHT_SETS: ClassVar[Mapping[str, Any]] = WEIGHT_SETS
+
     weights: PAMPCWeights | str = "authors"
-    horizon: int = 30
     dt: float = 0.1
-    d_ref: float = 7.0
-    rk4_steps: int = 1
     control_dt: float | None = 0.01
-    scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
-    backend: str = "rti"
     camera: CameraConfig = field(default_factory=CameraConfig)
     image_plane_guard: float = 0.5
 
     def __post_init__(self) -> None:
-        validate_tracking_config(self, PAMPCWeights, WEIGHT_SETS)
+        super().__post_init__()
         if not isinstance(self.camera, CameraConfig):
             raise ValueError(f"camera must be a CameraConfig, got {self.camera!r}")
         check_positive("image_plane_guard", self.image_plane_guard)
-
-    @property
-    def hover_input(self) -> np.ndarray:
-        return hover_input(self.params)
 
 
 def camera_rotation(camera: CameraConfig) -> np.ndarray:
@@ -184,44 +151,31 @@ def projection_function(config: PAMPCConfig) -> ca.Function:
                        ["x", "point"], ["s"])
 
 
+def build_ocp(config: PAMPCConfig) -> OCP:
+    """The PAMPC as a generic least-squares OCP (RK4 of the shared model plus the clock state):
+    the tracking residuals plus the image coordinates of the point, which moves with its
+    velocity over the horizon like the waypoint."""
+    def perception(x, p):
+        point = p[N_TRACKING_PARAMS:N_TRACKING_PARAMS + 3] + p[3:6] * x[CLOCK]
+        return image_coordinates(x, point, config.camera, config.image_plane_guard)
+    return tracking_ocp("pampc", config, N_PARAMS, perception)
+
+
 def residual_functions(config: PAMPCConfig) -> tuple[ca.Function, ca.Function]:
     """(stage_residual(x_aug, u, p), terminal_residual(x_aug, p)), zero at the reference."""
-    x = ca.SX.sym("x", NX_AUG)
-    u = ca.SX.sym("u", NU)
-    p = ca.SX.sym("p", N_PARAMS)
-    t = tracking_terms(x, p)
-    point = p[N_TRACKING_PARAMS:N_TRACKING_PARAMS + 3] + p[3:6] * x[CLOCK]
-    s = image_coordinates(x, point, config.camera, config.image_plane_guard)
-    state_res = ca.vertcat(t["position"], t["velocity"], t["tilt"], t["heading"], s)
-    stage = ca.Function("pampc_r", [x, u, p],
-                        [ca.vertcat(state_res, u - ca.DM(config.hover_input))],
-                        ["x", "u", "p"], ["r"])
-    terminal = ca.Function("pampc_rN", [x, p], [state_res], ["x", "p"], ["rN"])
-    return stage, terminal
-
-
-def build_ocp(config: PAMPCConfig) -> OCP:
-    """The PAMPC as a generic least-squares OCP (RK4 of the shared model plus the clock state)."""
-    F = augmented_dynamics("pampc", config.params, config.dt, config.rk4_steps, N_PARAMS)
-    stage, terminal = residual_functions(config)
-    return OCP(name="pampc", dynamics=F, stage_residual=stage, terminal_residual=terminal,
-               horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
-               u_upper=config.scaling.upper, fallback_input=config.hover_input)
+    ocp = build_ocp(config)
+    return ocp.stage_residual, ocp.terminal_residual
 
 
 class PAMPCPolicy(TrackingMPCPolicy):
-    """PAMPC as a policy: observation in, normalised (p, q, r, T) action out (interface as
-    ``VTNMPCPolicy``; :attr:`last_stats` after every call)."""
+    """PAMPC as a policy (interface: :class:`~controllers.rti_policy.RTIPolicy`)."""
 
     config_class = PAMPCConfig
-    weight_sets = WEIGHT_SETS
-
-    def __init__(self, config: PAMPCConfig | None = None, **overrides: Any) -> None:
-        super().__init__(config, **overrides)
 
     def build_ocp(self, config: PAMPCConfig) -> OCP:
         return build_ocp(config)
 
-    def parameters_for(self, reference: TrackingReference,
-                       obs: Mapping[str, np.ndarray]) -> np.ndarray:
-        return np.concatenate([reference.parameters(), obs["point"]])
+    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
+                   normal_xy: np.ndarray) -> np.ndarray:
+        """The tracking parameters and the inspection point (for the projection)."""
+        return np.concatenate([super().parameters(obs, state, normal_xy), obs["point"]])

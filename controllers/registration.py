@@ -47,7 +47,7 @@ def _pampc_policy(env: Any) -> Any:
 
 
 vtnmpc = PolicyEntry(_vtnmpc_policy, "the paper's VT-NMPC, paper weights", display_name="VT-NMPC")
-vtnmpc_later = PolicyEntry(lambda env: _vtnmpc_policy(env, weights="later"),
+vtnmpc_later = PolicyEntry(lambda env: _vtnmpc_policy(env, weights="later_tuning"),
                            "VT-NMPC with the authors' later tuning file", display_name="VT-NMPC (later tuning)")
 vtnmpc_dob = PolicyEntry(lambda env: _vtnmpc_policy(env, disturbance_observer=True),
                          "VT-NMPC, paper weights + disturbance observer (not in the paper)",

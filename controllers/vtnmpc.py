@@ -48,23 +48,20 @@ Closed-loop behaviour measured with this implementation (tests/test_vtnmpc.py, b
 """
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass, field, fields
-from typing import Any, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
 
 import casadi as ca
 import numpy as np
 
 from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
-from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_choice, check_finite, check_positive
+from wt_inspect_env.quadrotor import GRAVITY
+from wt_inspect_env.validation import check_choice, check_positive
 
-from wt_inspect_env.policy import Policy, check_observation
-from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
+from .rti import OCP
+from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
 
 N_PARAMS = 11
-BACKENDS = ("rti", "ipopt")
 HEADING_MODELS = ("body", "camera")
 HEADING_RESIDUALS = ("paper", "chord")
 STAGE_RESIDUAL_NAMES = ("h", "d", "r", "o", "u", "v", "w", "qx", "qy", "p", "q", "r_rate", "T")
@@ -72,7 +69,7 @@ TERMINAL_RESIDUAL_NAMES = ("u", "v", "w", "qx", "qy")
 
 
 @dataclass(frozen=True)
-class VTNMPCWeights:
+class VTNMPCWeights(LSQWeights):
     """Diagonal least-squares weights of the VT-NMPC.
 
     Defaults are the paper's (tuned by its authors' active-exploration method):
@@ -87,28 +84,10 @@ class VTNMPCWeights:
     orthogonality: float = 60.0
     x_star: tuple[float, ...] = (0.3, 0.3, 1.0, 80.0, 80.0)
     inputs: tuple[float, ...] = (1.0, 1.0, 0.25, 0.03)
-    terminal_factor: float = 1.5
 
-    def __post_init__(self) -> None:
-        for name in ("heading", "distance", "roi", "orthogonality", "terminal_factor"):
-            check_positive(f"weights.{name}", getattr(self, name), allow_zero=True)
-        for name, n in (("x_star", 5), ("inputs", 4)):
-            vals = getattr(self, name)
-            try:
-                vals = tuple(float(v) for v in vals)
-            except (TypeError, ValueError):
-                raise ValueError(f"weights.{name} must be {n} numbers, got {vals!r}") from None
-            if len(vals) != n:
-                raise ValueError(f"weights.{name} must have {n} entries, got {len(vals)}")
-            for i, v in enumerate(vals):
-                check_positive(f"weights.{name}[{i}]", v, allow_zero=True)
-            object.__setattr__(self, name, vals)
-        # Gauss-Newton needs a positive-definite input block: R + B^T P B > 0 in the Riccati
-        # recursion of the QP; zero input weights leave it singular.
-        for i, v in enumerate(self.inputs):
-            if v == 0:
-                raise ValueError(f"weights.inputs[{i}] must be positive (a zero input weight makes "
-                                 f"the QP singular), got {v!r}")
+    STAGE: ClassVar = (("heading", 1), ("distance", 1), ("roi", 1), ("orthogonality", 1), ("x_star", 5),
+                       ("inputs", 4))
+    TERMINAL: ClassVar = (("x_star", 5),)
 
     @classmethod
     def paper(cls) -> "VTNMPCWeights":
@@ -120,13 +99,6 @@ class VTNMPCWeights:
         W_qxqy 60, W_u (10, 10, 1.7, 0.025) (terminal factor unchanged, 1.5)."""
         return cls(heading=120.0, distance=70.0, roi=30.0, orthogonality=70.0,
                    x_star=(3.0, 3.0, 5.0, 60.0, 60.0), inputs=(10.0, 10.0, 1.7, 0.025))
-
-    def stage_vector(self) -> np.ndarray:
-        return np.array([self.heading, self.distance, self.roi, self.orthogonality,
-                         *self.x_star, *self.inputs])
-
-    def terminal_vector(self) -> np.ndarray:
-        return self.terminal_factor * np.array(self.x_star)
 
 
 WEIGHT_SETS: dict[str, VTNMPCWeights] = {
@@ -143,36 +115,23 @@ VTNMPC_PLUS: dict[str, Any] = {"disturbance_observer": True, "heading_model": "c
                                "heading_residual": "chord"}
 
 
-def _default_params() -> QuadrotorParams:
-    return get_preset("matrice100")
-
-
 @dataclass(frozen=True)
-class VTNMPCConfig:
-    """Everything that defines a VT-NMPC instance. ``weights`` may be a :class:`VTNMPCWeights`
-    or the name of a set in :data:`WEIGHT_SETS`; ``norm_eps`` is the guard (m^2) inside every
-    norm; ``scaling`` defaults to the environment's action scaling of ``params``. ``solver``
-    defaults to HPIPM's ``speed_abs`` preset: the VT-NMPC QP has input bounds only and is strictly
-    convex (always feasible), and in closed loop it needs 10 % less time than ``speed`` with the
-    same trajectory (non-finite or failed QPs are still caught by the fallback). ``backend``
-    ``"rti"`` is the real-time iteration; ``"ipopt"`` solves every step to convergence with
-    IPOPT (warm-started) - the slow reference of the benchmark. ``disturbance_observer`` (off in
-    the paper) estimates a world-frame disturbance acceleration from the gap between measured and
+class VTNMPCConfig(MPCConfig):
+    """Everything that defines a VT-NMPC instance (the common fields: :class:`MPCConfig`).
+    ``weights`` may be a :class:`VTNMPCWeights` or the name of a set in :data:`WEIGHT_SETS`;
+    ``norm_eps`` is the guard (m^2) inside every norm. ``disturbance_observer`` (off in the
+    paper) estimates a world-frame disturbance acceleration from the gap between measured and
     predicted velocity (first-order filter, ``observer_time_constant``) and feeds it to the
     prediction model - the "disturbance force estimate" input the authors' code had but did not
     use - and to the attitude reference (level with respect to the apparent gravity, see
-    :func:`attitude_residual`); it removes most of the offset that wind drag otherwise causes."""
+    :func:`attitude_residual`); it removes most of the offset that wind drag otherwise causes.
+    ``heading_model`` / ``heading_residual``: see :func:`visual_terms` and :data:`VTNMPC_PLUS`."""
 
-    params: QuadrotorParams = field(default_factory=_default_params)
+    WEIGHTS: ClassVar[type] = VTNMPCWeights
+    WEIGHT_SETS: ClassVar[Mapping[str, Any]] = WEIGHT_SETS
+
     weights: VTNMPCWeights | str = "paper"
-    horizon: int = 30
-    dt: float = 0.01
-    d_ref: float = 7.0
     norm_eps: float = 1e-6
-    rk4_steps: int = 1
-    scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
-    backend: str = "rti"
     disturbance_observer: bool = False
     observer_time_constant: float = 0.3
     observer_max_accel: float = 0.8 * GRAVITY
@@ -180,30 +139,13 @@ class VTNMPCConfig:
     heading_residual: str = "paper"
 
     def __post_init__(self) -> None:
-        if not isinstance(self.params, QuadrotorParams):
-            raise ValueError(f"params must be QuadrotorParams, got {type(self.params).__name__}")
-        if isinstance(self.weights, str):
-            if self.weights not in WEIGHT_SETS:
-                raise ValueError(f"unknown weights {self.weights!r}; valid: {', '.join(WEIGHT_SETS)}")
-            object.__setattr__(self, "weights", WEIGHT_SETS[self.weights])
-        elif not isinstance(self.weights, VTNMPCWeights):
-            raise ValueError(f"weights must be VTNMPCWeights or a set name, got {self.weights!r}")
-        for name in ("horizon", "rk4_steps"):
-            val = getattr(self, name)
-            if isinstance(val, bool) or not isinstance(val, (int, np.integer)) or val < 1:
-                raise ValueError(f"{name} must be a positive integer, got {val!r}")
-        check_positive("dt", self.dt)
-        check_positive("d_ref", self.d_ref)
+        super().__post_init__()
         check_positive("norm_eps", self.norm_eps)
-        if self.scaling is None:
-            object.__setattr__(self, "scaling", ActionScaling.from_params(self.params))
-        elif not isinstance(self.scaling, ActionScaling):
-            raise ValueError(f"scaling must be an ActionScaling, got {self.scaling!r}")
-        if not isinstance(self.solver, RTIOptions):
-            raise ValueError(f"solver must be RTIOptions, got {self.solver!r}")
-        check_choice("backend", self.backend, BACKENDS)
         if not isinstance(self.disturbance_observer, bool):
             raise ValueError(f"disturbance_observer must be a bool, got {self.disturbance_observer!r}")
+        if self.disturbance_observer and self.control_dt < self.dt:
+            raise ValueError(f"disturbance_observer needs control_dt >= dt (it compares the measurement "
+                             f"with the plan's next stage), got control_dt={self.control_dt!r}, dt={self.dt!r}")
         check_positive("observer_time_constant", self.observer_time_constant)
         check_positive("observer_max_accel", self.observer_max_accel)
         if self.observer_max_accel >= GRAVITY:
@@ -211,10 +153,6 @@ class VTNMPCConfig:
                              f"attitude needs thrust with an upward part), got {self.observer_max_accel!r}")
         check_choice("heading_model", self.heading_model, HEADING_MODELS)
         check_choice("heading_residual", self.heading_residual, HEADING_RESIDUALS)
-
-    @property
-    def hover_input(self) -> np.ndarray:
-        return np.array([0.0, 0.0, 0.0, self.params.mass * GRAVITY])
 
 
 def visual_terms(x, params, eps: float, heading_model: str = "body"):
@@ -287,29 +225,7 @@ def build_ocp(config: VTNMPCConfig) -> OCP:
     F = ca.Function("vtnmpc_F", [x, u, p],
                     [model.rk4_expr(x, u, config.dt, a_ext=p[8:11], steps=config.rk4_steps)],
                     ["x", "u", "p"], ["x_next"])
-    stage, terminal = residual_functions(config)
-    return OCP(name="vtnmpc", dynamics=F, stage_residual=stage, terminal_residual=terminal,
-               horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
-               u_upper=config.scaling.upper, fallback_input=config.hover_input)
-
-
-def state_from_obs(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """Model state [p, v_B, q] from a checked observation (quaternion renormalised)."""
-    q = obs["quaternion"]
-    nq = np.linalg.norm(q)
-    if nq < 1e-9:
-        raise ValueError(f"observation['quaternion'] must be a unit quaternion, got {q}")
-    return np.concatenate([obs["position"], obs["velocity_body"], q / nq])
-
-
-def horizontal_normal(normal: np.ndarray, fallback: np.ndarray | None) -> np.ndarray | None:
-    """(n_x, n_y) of ``normal`` with n_z dropped and renormalised; ``fallback`` when the normal is
-    (nearly) vertical and has no horizontal direction."""
-    nxy = np.asarray(normal, dtype=float)[:2]
-    norm = float(np.hypot(nxy[0], nxy[1]))
-    if norm < 1e-6:
-        return fallback
-    return nxy / norm
+    return config_ocp("vtnmpc", config, F, *residual_functions(config))
 
 
 def vtnmpc_parameters(state: np.ndarray, point: np.ndarray, normal_xy: np.ndarray,
@@ -323,125 +239,52 @@ def vtnmpc_parameters(state: np.ndarray, point: np.ndarray, normal_xy: np.ndarra
     return np.concatenate([point, normal_xy, v_body, a])
 
 
-class VTNMPCPolicy(Policy):
+class VTNMPCPolicy(RTIPolicy):
     """VT-NMPC as a policy: observation in, normalised (p, q, r, T) action out.
 
-    Each :meth:`act` runs one real-time iteration (prepare, feedback, shift) on the compiled QP
-    data; :attr:`last_stats` holds its :class:`SolveStats`.
+    Each :meth:`act` runs one real-time iteration on the compiled QP data (schedule and
+    interface: :class:`~controllers.rti_policy.RTIPolicy`); :attr:`last_stats` holds its
+    :class:`~controllers.rti.SolveStats`.
     """
 
+    config_class = VTNMPCConfig
+
     def __init__(self, config: VTNMPCConfig | None = None, **overrides: Any) -> None:
-        if config is None:
-            config = VTNMPCConfig(**overrides)
-        elif overrides:
-            known = {f.name for f in fields(VTNMPCConfig)}
-            bad = sorted(set(overrides) - known)
-            if bad:
-                raise ValueError(f"unknown VTNMPCConfig option(s) {bad}; valid: {sorted(known)}")
-            config = dataclasses.replace(config, **overrides)
-        self.config = config
-        self.ocp = build_ocp(config)
-        if config.backend == "ipopt":
-            self.solver: RTISolver | IpoptOCPSolver = IpoptOCPSolver(
-                self.ocp, config.weights.stage_vector(), config.weights.terminal_vector())
-        else:
-            self.solver = RTISolver(self.ocp, config.weights.stage_vector(),
-                                    config.weights.terminal_vector(), config.solver)
-        self.scaling = config.scaling
-        self._normal_xy: np.ndarray | None = None
+        super().__init__(config, **overrides)
         self._a_hat = np.zeros(3)
-        self._v_pred_world: np.ndarray | None = None
-        self.last_stats: SolveStats = SolveStats()
-        self.last_command: np.ndarray | None = None
+
+    def build_ocp(self, config: VTNMPCConfig) -> OCP:
+        return build_ocp(config)
 
     def reset(self, seed: int | None = None) -> None:
-        """Drop the warm start (the controller is deterministic; ``seed`` is accepted for the
-        common interface)."""
-        self.solver.reset()
-        self._normal_xy = None
+        super().reset(seed)
         self._a_hat = np.zeros(3)
-        self._v_pred_world = None
-        self.last_stats = SolveStats()
-        self.last_command = None
 
-    def set_weights(self, weights: VTNMPCWeights | str) -> None:
-        """Switch weights without recompiling (they are runtime inputs of the QP data)."""
-        w = WEIGHT_SETS[weights] if isinstance(weights, str) and weights in WEIGHT_SETS else weights
-        if not isinstance(w, VTNMPCWeights):
-            raise ValueError(f"weights must be VTNMPCWeights or one of {list(WEIGHT_SETS)}, "
-                             f"got {weights!r}")
-        if isinstance(self.solver, IpoptOCPSolver):   # weights are baked into its NLP
-            self.solver = IpoptOCPSolver(self.ocp, w.stage_vector(), w.terminal_vector())
-        else:
-            self.solver.set_weights(w.stage_vector(), w.terminal_vector())
-
-    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray) -> np.ndarray:
-        """Online parameters from a checked observation (see :func:`vtnmpc_parameters`).
-
-        A normal without horizontal part (top/bottom faces) keeps the previous horizontal normal,
-        or - at the first step - points from the inspection point towards the drone.
-        """
-        fallback = self._normal_xy
-        if fallback is None:
-            away = state[:2] - obs["point"][:2]
-            fallback = horizontal_normal(np.append(away, 0.0), np.array([1.0, 0.0]))
-        nxy = horizontal_normal(obs["normal"], fallback)
-        self._normal_xy = nxy
-        return vtnmpc_parameters(state, obs["point"], nxy, obs["point_velocity"], self._a_hat)
+    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
+                   normal_xy: np.ndarray) -> np.ndarray:
+        """Online parameters (see :func:`vtnmpc_parameters`), with the observer's estimate."""
+        return vtnmpc_parameters(state, obs["point"], normal_xy, obs["point_velocity"], self._a_hat)
 
     @property
     def disturbance_estimate(self) -> np.ndarray:
         """The observer's world-frame disturbance acceleration (zero when it is off)."""
         return self._a_hat.copy()
 
-    def _update_observer(self, state: np.ndarray) -> None:
-        """a_hat += dt / (tau + dt) * (v_measured - v_predicted) / dt, in the world frame.
+    def on_measurement(self, state: np.ndarray) -> None:
+        """The disturbance observer: a_hat += (v_measured - v_predicted) / (tau + dt), world frame.
 
-        The prediction is the plan's x_1 from the previous step (model with the current a_hat), so
-        the velocity gap is the unmodelled acceleration; the estimate is bounded by ``observer_max_accel``
-        (0.8 g by default: the 7 m/s gust peaks need ~0.7 g on the Matrice-100-like drone)."""
-        if self._v_pred_world is None:
+        The prediction is the plan's state for this step (model with the current a_hat), so the
+        velocity gap is the unmodelled acceleration; the estimate is bounded by
+        ``observer_max_accel`` (0.8 g by default: the 7 m/s gust peaks need ~0.7 g on the
+        Matrice-100-like drone)."""
+        if not self.config.disturbance_observer:
             return
-        dt, tau = self.config.dt, self.config.observer_time_constant
-        v_meas = quat_to_rotmat_np(state[6:10]) @ state[3:6]
-        self._a_hat += (v_meas - self._v_pred_world) / (tau + dt)
+        predicted = self.predicted_state
+        if predicted is None:
+            return
+        dt, tau = self.config.control_dt, self.config.observer_time_constant
+        self._a_hat += (self.world_velocity(state) - self.world_velocity(predicted)) / (tau + dt)
         norm = float(np.linalg.norm(self._a_hat))
         cap = self.config.observer_max_accel
         if norm > cap:
             self._a_hat *= cap / norm
-
-    def command(self, obs: Mapping[str, Any]) -> np.ndarray:
-        """Physical command [p, q, r, T] for an observation (one RTI step)."""
-        o = check_observation(obs)
-        x = state_from_obs(o)
-        if self.config.disturbance_observer:
-            self._update_observer(x)
-        params = self.parameters(o, x)
-        u = self.solver.step(x, params)
-        self.last_stats = self.solver.last_stats
-        self.last_command = u
-        if self.config.disturbance_observer:
-            x1 = self.solver.iterate[:NX]   # after the shift: the predicted next state
-            self._v_pred_world = quat_to_rotmat_np(x1[6:10]) @ x1[3:6]
-        return u
-
-    def act(self, obs: Mapping[str, Any]) -> np.ndarray:
-        return self.scaling.to_action(self.command(obs))
-
-    @property
-    def predicted_states(self) -> np.ndarray:
-        """The current plan's states (N+1, 10) (shifted one stage after each act)."""
-        return self.solver.states
-
-
-def ideal_state(point, normal, d_ref: float, velocity_body=(0.0, 0.0, 0.0)) -> np.ndarray:
-    """The pose the VT-NMPC aims for: p + d_ref n_xy at the point's height, level, facing the
-    point (yaw along -n_xy)."""
-    n = horizontal_normal(np.asarray(normal, float), None)
-    if n is None:
-        raise ValueError(f"normal must have a horizontal component, got {normal!r}")
-    check_finite("d_ref", d_ref)
-    pos = np.asarray(point, float) + d_ref * np.array([n[0], n[1], 0.0])
-    yaw = np.arctan2(-n[1], -n[0])
-    return np.concatenate([pos, np.asarray(velocity_body, float),
-                           [0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]])

@@ -15,7 +15,8 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from wt_inspect_env.dynamics import QuadrotorModel, quat_to_rotmat_np
-from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.geometry import heading_and_distance, standoff_state
+from wt_inspect_env.quadrotor import QuadrotorParams, drag_force
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_array, check_positive
 
@@ -51,16 +52,15 @@ class SurfacePass:
 
     def ideal_state(self, t: float, d_ref: float) -> np.ndarray:
         """Where the VT-NMPC should be: p + d_ref n, level, facing the point."""
-        from controllers.vtnmpc import ideal_state
-        return ideal_state(self.point(t), self.normal, d_ref)
+        return standoff_state(self.point(t), self.normal, d_ref)
 
 
 class ModelPlant:
     """The shared CasADi model integrated with RK4 at ``substeps`` per control step: a stand-in
     for the PyBullet simulator with the same ``reset``/``step``/``state`` interface.
 
-    The plant has the linear rotor drag of the parameters, F_B = -D (v_B - R^T v_wind), which
-    the controllers' model (like the paper's) does not know; ``wind(t, positions) -> velocities``
+    The plant has the simulator's drag (:func:`wt_inspect_env.quadrotor.drag_force` of the airspeed
+    v_B - R^T v_wind), which the controllers' model (like the paper's) does not know; ``wind(t, positions) -> velocities``
     (world) sets the air velocity (still air without it).
     """
 
@@ -76,7 +76,6 @@ class ModelPlant:
         self._F = ca.Function("plant", [x, u, a],
                               [self._model.rk4_expr(x, u, dt, a_ext=a, steps=substeps)])
         self.wind = wind
-        self._drag = np.diag(params.rotor_drag)
         self.t = 0.0
         self._state = np.zeros(10)
 
@@ -90,12 +89,12 @@ class ModelPlant:
         return self.state
 
     def disturbance_accel(self) -> np.ndarray:
-        """World-frame acceleration from rotor drag relative to the air at the current state."""
+        """World-frame acceleration from drag relative to the air at the current state."""
         x = self._state
         R = quat_to_rotmat_np(x[6:10])
         v_wind = np.zeros(3) if self.wind is None else \
             np.asarray(self.wind(self.t, x[None, 0:3]), dtype=float)[0]
-        f_body = -self._drag @ (x[3:6] - R.T @ v_wind)
+        f_body = drag_force(self.params, x[3:6] - R.T @ v_wind)
         return R @ f_body / self.params.mass
 
     def step(self, command: np.ndarray) -> np.ndarray:
@@ -121,10 +120,7 @@ def make_observation(state: np.ndarray, point: np.ndarray, normal: np.ndarray,
 
 def inspection_geometry(state: np.ndarray, point: np.ndarray, normal: np.ndarray) -> tuple[float, float]:
     """(horizontal distance d, heading h) of a state to a point, as the paper defines them."""
-    a = np.asarray(point) - state[0:3]
-    d = float(np.hypot(a[0], a[1]))
-    bx = quat_to_rotmat_np(state[6:10])[:, 0]
-    h = float((bx[0] * a[0] + bx[1] * a[1]) / max(d, 1e-9))
+    h, d = heading_and_distance(state[0:3], state[6:10], point)
     return d, h
 
 

@@ -1,4 +1,10 @@
-"""Hypothesis profiles: CI runs are reproducible, local runs keep exploring.
+"""Shared test set-up: Hypothesis profiles and the fixtures several test modules use.
+
+Fixtures: ``params`` (the Matrice-100-like preset every controller test flies). The controller
+tests' closed-loop harness (model plant, surface pass, loop) is the plain module
+``tests/closed_loop.py``, imported by name.
+
+Hypothesis profiles: CI runs are reproducible, local runs keep exploring.
 
 ``ci`` (selected when the ``CI`` environment variable is set to anything but ``""``/``0``/``false``,
 as GitHub Actions, GitLab and most runners do; or with ``HYPOTHESIS_PROFILE=ci``) derandomises
@@ -13,7 +19,10 @@ from __future__ import annotations
 
 import os
 
+import pytest
 from hypothesis import HealthCheck, settings
+
+from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
 
 # Written out in full rather than relying on Hypothesis' own CI detection (6.x versions differ).
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True, deadline=None,
@@ -30,3 +39,9 @@ def _profile() -> str:
 
 
 settings.load_profile(_profile())
+
+
+@pytest.fixture(scope="session")
+def params() -> QuadrotorParams:
+    """The Matrice-100-like preset (the paper's drone)."""
+    return get_preset("matrice100")

@@ -72,3 +72,26 @@ def test_policy_entry_rejects_bad_input():
         PolicyEntry(factory=None, description="x")
     with pytest.raises(ValueError, match="description"):
         PolicyEntry(factory=lambda env: None, description="")
+
+
+def test_every_registered_controller_builds_and_flies_a_step():
+    """Each plain name builds its policy from the environment and returns a valid action (the
+    ``vtnmpc-later`` entry once named a weight set that did not exist)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import wt_inspect_env  # noqa: F401 - registers the env ids
+    from wt_inspect.evaluation import registry
+    env = gym.make("WindTurbineInspection-Surface-v0")
+    try:
+        obs, _ = env.reset(seed=0)
+        for name, entry in registry.entries().items():
+            if entry.takes_argument:
+                continue
+            policy = registry.resolve(name)(env.unwrapped)
+            policy.reset(seed=0)
+            action = policy.act(obs)
+            assert action.shape == (4,) and np.all(np.abs(action) <= 1.0), name
+            assert not policy.last_stats.fallback, name
+    finally:
+        env.close()

@@ -15,15 +15,9 @@ from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, res
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import TrackingReference, standoff_reference
 from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.quadrotor import get_preset
 from wt_inspect_env.sim import QuadrotorSim, SimConfig
 
 D_REF = 7.0
-
-
-@pytest.fixture(scope="module")
-def params():
-    return get_preset("matrice100")
 
 
 @pytest.fixture(scope="module")
@@ -129,8 +123,8 @@ class _WrappingNMPC(NMPCPolicy):
         super().__init__(*args, **kw)
         self._turns = itertools.cycle([0, 1, -1, 3, -2])
 
-    def reference(self, obs, state):
-        ref = super().reference(obs, state)
+    def reference(self, obs, state, normal_xy):
+        ref = super().reference(obs, state, normal_xy)
         return dataclasses.replace(ref, yaw=ref.yaw + 2 * math.pi * next(self._turns))
 
 

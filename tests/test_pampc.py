@@ -16,15 +16,9 @@ from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import standoff_reference
 from wt_inspect_env.camera import CameraConfig, GimbalCamera
 from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.quadrotor import get_preset
 from wt_inspect_env.sim import QuadrotorSim, SimConfig
 
 D_REF = 7.0
-
-
-@pytest.fixture(scope="module")
-def params():
-    return get_preset("matrice100")
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from controllers.rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver
-from controllers.vtnmpc import VTNMPCConfig, build_ocp, ideal_state, vtnmpc_parameters
+from controllers.vtnmpc import VTNMPCConfig, build_ocp, vtnmpc_parameters
+from wt_inspect_env.geometry import standoff_state as ideal_state
 
 
 @pytest.fixture(scope="module")

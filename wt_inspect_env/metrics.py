@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .geometry import heading_and_distance  # noqa: F401 - the per-step h and d (held to the accumulator by the tests)
 from .validation import check_array, check_positive
 
 RAD2DEG = 180.0 / math.pi
@@ -134,18 +135,6 @@ class _Totals:
     vis: int = 0
     t_first: float = math.nan
     t_last: float = math.nan
-
-
-def heading_and_distance(position, quaternion, point) -> tuple[float, float]:
-    """The paper's heading function h and horizontal distance d for one sample, in plain floats
-    (~2 us; for reward shaping - the same formulas as the metrics)."""
-    ax, ay = float(point[0]) - float(position[0]), float(point[1]) - float(position[1])
-    qx, qy, qz, qw = (float(v) for v in quaternion)
-    qq = qx * qx + qy * qy + qz * qz + qw * qw
-    bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-    bx1 = 2.0 * (qx * qy + qw * qz) / qq
-    d = math.sqrt(ax * ax + ay * ay)
-    return ((bx0 * ax + bx1 * ay) / d if d > 1e-9 else 0.0), d
 
 
 def _finish(tot: _Totals, n_triangles: int | None, config: MetricsConfig) -> InspectionMetrics:

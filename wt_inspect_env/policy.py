@@ -51,6 +51,16 @@ def check_observation(obs: Mapping[str, Any]) -> dict[str, np.ndarray]:
     return out
 
 
+def state_from_observation(obs: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The model state [p, v_B, q] (:mod:`wt_inspect_env.dynamics` layout) of a checked
+    observation, quaternion renormalised (float32 observations are not exactly unit)."""
+    q = obs["quaternion"]
+    nq = np.linalg.norm(q)
+    if nq < 1e-9:
+        raise ValueError(f"observation['quaternion'] must be a unit quaternion, got {q}")
+    return np.concatenate([obs["position"], obs["velocity_body"], q / nq])
+
+
 class Policy(ABC):
     """Base class: subclasses implement :meth:`act` and :meth:`reset`; :meth:`predict` adapts
     them to stable-baselines3's signature (a batch of one environment, no recurrent state)."""

@@ -21,6 +21,12 @@ GRAVITY = 9.81
 AIR_DENSITY = 1.225
 
 
+def hover_thrust(mass: float) -> float:
+    """m g [N]: the collective thrust that holds ``mass`` level (the one place it is computed;
+    :attr:`QuadrotorParams.weight` and the action scaling's hover command read it)."""
+    return mass * GRAVITY
+
+
 @dataclass(frozen=True)
 class QuadrotorParams:
     """Physical parameters of an X-configuration quadrotor (SI units)."""
@@ -69,14 +75,14 @@ class QuadrotorParams:
                 raise ValueError(f"{fname} must have 3 entries, got {vals!r}")
             for i, v in enumerate(vals):
                 check_positive(f"{fname}[{i}]", v, allow_zero=True)
-        if 4 * self.max_rotor_thrust < 2.0 * self.mass * GRAVITY:
+        if 4 * self.max_rotor_thrust < 2.0 * hover_thrust(self.mass):
             raise ValueError(
                 f"max_rotor_thrust must allow 2 m g of total thrust, got {self.max_rotor_thrust!r}")
 
     @property
     def weight(self) -> float:
         """m g [N]: the hover thrust."""
-        return self.mass * GRAVITY
+        return hover_thrust(self.mass)
 
     @property
     def inertia_matrix(self) -> np.ndarray:
@@ -154,3 +160,13 @@ def get_preset(name: str) -> QuadrotorParams:
     """The named parameter preset; ``ValueError`` listing the valid names otherwise."""
     check_choice("drone preset", name, PRESETS)
     return PRESETS[name]
+
+
+def drag_force(params: QuadrotorParams, v_rel_body) -> np.ndarray:
+    """Aerodynamic force in body axes for the airspeed ``v_rel_body`` = R^T (v - v_wind):
+    F = -D v_rel - 1/2 rho C_d A |v_rel| v_rel, with the linear rotor drag D = ``rotor_drag`` and
+    the quadratic body drag ``body_drag_area`` per body axis - the simulator's drag model (which
+    evaluates the same formula inline in its physics loop)."""
+    v = np.asarray(v_rel_body, dtype=float)
+    speed = float(np.linalg.norm(v))
+    return -(np.asarray(params.rotor_drag) + 0.5 * AIR_DENSITY * np.asarray(params.body_drag_area) * speed) * v

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .quadrotor import GRAVITY, QuadrotorParams
+from .quadrotor import QuadrotorParams, hover_thrust
 from .validation import check_array, check_positive
 
 OBS_KEYS: tuple[str, ...] = (
@@ -63,8 +63,13 @@ class ActionScaling:
         return cls(mass=params.mass, **kw)
 
     @property
+    def hover_thrust(self) -> float:
+        """m g [N] of the scaled airframe."""
+        return hover_thrust(self.mass)
+
+    @property
     def thrust_bounds(self) -> tuple[float, float]:
-        w = self.mass * GRAVITY
+        w = self.hover_thrust
         return self.min_thrust_factor * w, self.max_thrust_factor * w
 
     @property
@@ -94,4 +99,4 @@ class ActionScaling:
         return np.clip(2.0 * (c - lo) / (hi - lo) - 1.0, -1.0, 1.0).astype(np.float32)
 
     def hover_action(self) -> np.ndarray:
-        return self.to_action([0.0, 0.0, 0.0, self.mass * GRAVITY])
+        return self.to_action([0.0, 0.0, 0.0, self.hover_thrust])

@@ -61,7 +61,7 @@ import numpy as np
 
 import wt_inspect_env  # noqa: F401 - registers the environment ids
 from wt_inspect_env.atomic_io import atomic_path
-from wt_inspect_env.metrics import heading_and_distance
+from wt_inspect_env.geometry import camera_heading, heading_and_distance
 
 from . import registry
 
@@ -249,10 +249,7 @@ def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mappi
     b = rec.buf
     pos, q, point = obs["position"], obs["quaternion"], obs["point"]
     h_body, d = heading_and_distance(pos, q, point)
-    qx, qy, qz, qw = (float(v) for v in q)
-    qq = qx * qx + qy * qy + qz * qz + qw * qw
-    bxy = math.hypot(1.0 - 2.0 * (qy * qy + qz * qz) / qq, 2.0 * (qx * qy + qw * qz) / qq)
-    h = h_body / bxy if d > 1e-9 and bxy > 1e-9 else 0.0   # the gimbal camera's heading (CM's h)
+    h = camera_heading(pos, q, point)   # the gimbal camera's heading (CM's h)
     b["t"][i] = info["time"]
     b["position"][i] = pos
     b["quaternion"][i] = q

@@ -1,0 +1,403 @@
+"""One policy base for every MPC on the RTI core: a controller is its OCP, weights and parameters.
+
+:class:`RTIPolicy` owns everything that is the same for the VT-NMPC, the NMPC and the PAMPC - and
+for the next MPC: building the solver (real-time iteration or IPOPT), reset, weights switched
+without recompiling, the horizontal-normal fallback (:class:`~wt_inspect_env.geometry.HorizontalNormal`),
+keyword overrides of the configuration, the quaternion sign alignment, the warm-start shift for the
+control period, the preparation/feedback schedule and the statistics. A subclass provides only
+
+* ``config_class`` - an :class:`MPCConfig` subclass (its extra fields, its weight class and sets);
+* :meth:`RTIPolicy.build_ocp` - the least-squares OCP (residuals, dynamics, bounds);
+* :meth:`RTIPolicy.parameters` - the OCP's online parameters for an observation;
+* optionally :meth:`RTIPolicy.model_state` (an augmented state, e.g. the baselines' clock) and
+  :meth:`RTIPolicy.on_measurement` (estimators fed by each measured state, e.g. VT-NMPC's
+  disturbance observer).
+
+Weights (:class:`LSQWeights`) have one shape for every controller: named blocks of the residual
+vector, each a number (repeated over its rows) or a tuple, laid out by the class's ``STAGE`` and
+``TERMINAL`` tables, with a ``terminal_factor``.
+
+Preparation and feedback. With ``prepare_ahead`` off (the default, and how every published result
+was made) each :meth:`~RTIPolicy.act` linearises for the new observation and then solves the QP:
+the command waits for both. With ``prepare_ahead`` on, ``act`` runs only the feedback QP for the
+measured state on the linearisation prepared at the end of the previous call, and then - after the
+command exists - shifts the plan and prepares the next step at the *predicted* state (the plan's
+next state) with the parameters predicted for it: the inspection point moved on by its velocity
+over one control period, the attitude of the predicted state. This is what acados' ``rti_phase``
+1/2 does: everything that depends on the measurement enters the feedback only through the initial
+state constraint dx_0 = x_measured - x_0, while parameters are set before the preparation (so they
+lag by one step, as in acados; estimators fed by the measurement update at the next feedback and
+reach the QP one step later). ``last_stats.latency_ms`` is observation to command either way.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from wt_inspect_env.dynamics import NX, quat_to_rotmat_np
+from wt_inspect_env.geometry import HorizontalNormal
+from wt_inspect_env.policy import Policy, check_observation, state_from_observation
+from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.validation import check_choice, check_positive
+
+from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
+
+BACKENDS = ("rti", "ipopt")
+
+
+# ------------------------------------------------------------------------------------------------
+# validation helpers
+# ------------------------------------------------------------------------------------------------
+
+def weight_tuple(name: str, values: Any, n: int) -> tuple[float, ...]:
+    """``values`` as ``n`` finite non-negative floats; ValueError naming ``name`` otherwise."""
+    try:
+        vals = tuple(float(v) for v in values)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be {n} numbers, got {values!r}") from None
+    if len(vals) != n:
+        raise ValueError(f"{name} must have {n} entries, got {len(vals)}")
+    for i, v in enumerate(vals):
+        check_positive(f"{name}[{i}]", v, allow_zero=True)
+    return vals
+
+
+def check_positive_int(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def warm_start_shifts(control_dt: float, dt: float) -> int:
+    """How many stages to shift the plan after each control step.
+
+    A control period equal to (or a multiple of) the shooting interval shifts by that many stages.
+    A control period *shorter* than the stage (PAMPC: 0.01 s control, 0.1 s stages) keeps the plan
+    where it is: its first stage starts "now" either way, and shifting by a whole stage would
+    start the warm start 0.1 s in the future. Periods that are not a multiple are refused.
+    """
+    ratio = control_dt / dt
+    if ratio < 1.0 - 1e-9:
+        return 0
+    n = int(round(ratio))
+    if abs(ratio - n) > 1e-6:
+        raise ValueError(f"control_dt must be shorter than dt or a multiple of it, got "
+                         f"control_dt={control_dt!r}, dt={dt!r}")
+    return n
+
+
+# ------------------------------------------------------------------------------------------------
+# weights
+# ------------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class LSQWeights:
+    """Diagonal least-squares weights in named blocks (the one shape of every controller).
+
+    A subclass declares its blocks as fields - a float default for a block weighted by one number
+    (repeated over the block's rows), a tuple default for one weight per row - and lays them out
+    with ``STAGE`` and ``TERMINAL``: ``(field, rows)`` in the order of the stage and terminal
+    residuals. :meth:`terminal_vector` is ``terminal_factor`` times the terminal layout. The block
+    named ``INPUTS`` must be positive: Gauss-Newton needs a positive-definite input block
+    (R + B^T P B > 0 in HPIPM's Riccati recursion), a zero input weight can leave the QP singular.
+    """
+
+    terminal_factor: float = 1.5
+
+    STAGE: ClassVar[tuple[tuple[str, int], ...]] = ()
+    TERMINAL: ClassVar[tuple[tuple[str, int], ...]] = ()
+    INPUTS: ClassVar[str] = "inputs"
+
+    def __post_init__(self) -> None:
+        rows = dict(self.STAGE) | dict(self.TERMINAL)
+        for f in fields(self):
+            if f.name == "terminal_factor":
+                continue
+            value, name = getattr(self, f.name), f"weights.{f.name}"
+            if isinstance(f.default, tuple):
+                object.__setattr__(self, f.name, weight_tuple(name, value, rows[f.name]))
+            else:
+                object.__setattr__(self, f.name, check_positive(name, value, allow_zero=True))
+        object.__setattr__(self, "terminal_factor",
+                           check_positive("weights.terminal_factor", self.terminal_factor, allow_zero=True))
+        for i, v in enumerate(np.atleast_1d(getattr(self, self.INPUTS))):
+            if v == 0:
+                raise ValueError(f"weights.{self.INPUTS}[{i}] must be positive (a zero input weight makes "
+                                 f"the QP singular), got {v!r}")
+
+    def _vector(self, layout: tuple[tuple[str, int], ...]) -> np.ndarray:
+        parts = []
+        for name, n in layout:
+            value = getattr(self, name)
+            parts.append(np.asarray(value, dtype=float) if isinstance(value, tuple) else np.full(n, value))
+        return np.concatenate(parts)
+
+    def stage_vector(self) -> np.ndarray:
+        return self._vector(self.STAGE)
+
+    def terminal_vector(self) -> np.ndarray:
+        return self.terminal_factor * self._vector(self.TERMINAL)
+
+
+# ------------------------------------------------------------------------------------------------
+# configuration
+# ------------------------------------------------------------------------------------------------
+
+def _default_params() -> QuadrotorParams:
+    return get_preset("matrice100")
+
+
+@dataclass(frozen=True)
+class MPCConfig:
+    """What every MPC instance has. ``weights`` may be a weight object of ``WEIGHTS`` or the name
+    of one of ``WEIGHT_SETS`` (set by each subclass). ``control_dt`` is the period at which
+    :meth:`RTIPolicy.act` is called (default ``dt``; the warm start is shifted accordingly, see
+    :func:`warm_start_shifts`). ``scaling`` defaults to the environment's action scaling of
+    ``params``. ``solver`` defaults to HPIPM's ``speed_abs`` preset: these QPs have input bounds
+    only and a Gauss-Newton Hessian with positive input weights, so they are strictly convex and
+    always feasible (failed or non-finite QPs are still caught by the RTI fallback). ``backend``
+    ``"rti"`` is the real-time iteration, ``"ipopt"`` solves every step to convergence (the slow
+    reference). ``prepare_ahead``: see the module docstring."""
+
+    WEIGHTS: ClassVar[type] = LSQWeights
+    WEIGHT_SETS: ClassVar[Mapping[str, Any]] = {}
+
+    params: QuadrotorParams = field(default_factory=_default_params)
+    weights: Any = "paper"
+    horizon: int = 30
+    dt: float = 0.01
+    d_ref: float = 7.0
+    rk4_steps: int = 1
+    control_dt: float | None = None
+    scaling: ActionScaling | None = None
+    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
+    backend: str = "rti"
+    prepare_ahead: bool = False
+
+    def __post_init__(self) -> None:
+        put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
+        if not isinstance(self.params, QuadrotorParams):
+            raise ValueError(f"params must be QuadrotorParams, got {type(self.params).__name__}")
+        if isinstance(self.weights, str):
+            if self.weights not in self.WEIGHT_SETS:
+                raise ValueError(f"unknown weights {self.weights!r}; valid: {', '.join(self.WEIGHT_SETS)}")
+            put("weights", self.WEIGHT_SETS[self.weights])
+        elif not isinstance(self.weights, self.WEIGHTS):
+            raise ValueError(f"weights must be {self.WEIGHTS.__name__} or a set name, got {self.weights!r}")
+        put("horizon", check_positive_int("horizon", self.horizon))
+        put("rk4_steps", check_positive_int("rk4_steps", self.rk4_steps))
+        put("dt", check_positive("dt", self.dt))
+        put("d_ref", check_positive("d_ref", self.d_ref))
+        put("control_dt", check_positive("control_dt", self.dt if self.control_dt is None else self.control_dt))
+        warm_start_shifts(self.control_dt, self.dt)
+        if self.scaling is None:
+            put("scaling", ActionScaling.from_params(self.params))
+        elif not isinstance(self.scaling, ActionScaling):
+            raise ValueError(f"scaling must be an ActionScaling, got {self.scaling!r}")
+        if not isinstance(self.solver, RTIOptions):
+            raise ValueError(f"solver must be RTIOptions, got {self.solver!r}")
+        check_choice("backend", self.backend, BACKENDS)
+        if not isinstance(self.prepare_ahead, bool):
+            raise ValueError(f"prepare_ahead must be a bool, got {self.prepare_ahead!r}")
+
+    @property
+    def hover_input(self) -> np.ndarray:
+        """[0, 0, 0, m g]: the input reference and the fallback command."""
+        return np.array([0.0, 0.0, 0.0, self.params.weight])
+
+
+def config_ocp(name: str, config: MPCConfig, dynamics: Any, stage_residual: Any, terminal_residual: Any) -> OCP:
+    """The least-squares OCP of a controller: its dynamics and residuals with the configuration's
+    horizon, stage length, the action bounds as input bounds and hover as the fallback input."""
+    return OCP(name=name, dynamics=dynamics, stage_residual=stage_residual, terminal_residual=terminal_residual,
+               horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
+               u_upper=config.scaling.upper, fallback_input=config.hover_input)
+
+
+def resolve_config(config_cls: type, config: Any, overrides: Mapping[str, Any]) -> Any:
+    """A config from ``config`` and/or keyword overrides (unknown options named in the error)."""
+    if config is not None and not isinstance(config, config_cls):
+        raise ValueError(f"config must be a {config_cls.__name__}, got {type(config).__name__}")
+    known = {f.name for f in fields(config_cls)}
+    bad = sorted(set(overrides) - known)
+    if bad:
+        raise ValueError(f"unknown {config_cls.__name__} option(s) {bad}; valid: {sorted(known)}")
+    if config is None:
+        return config_cls(**overrides)
+    return dataclasses.replace(config, **overrides) if overrides else config
+
+
+# ------------------------------------------------------------------------------------------------
+# the policy base class
+# ------------------------------------------------------------------------------------------------
+
+class RTIPolicy(Policy):
+    """An MPC policy on the RTI core: observation in, normalised (p, q, r, T) action out.
+
+    ``Policy(config=None, **overrides)``; :meth:`reset`, :meth:`act`, :meth:`predict`,
+    :meth:`set_weights`; :attr:`last_stats` (:class:`~controllers.rti.SolveStats`) after every
+    call; :attr:`last_command` the physical command. See the module docstring for what a subclass
+    provides.
+    """
+
+    config_class: ClassVar[type] = MPCConfig
+
+    def __init__(self, config: MPCConfig | None = None, **overrides: Any) -> None:
+        config = resolve_config(self.config_class, config, overrides)
+        self.config = config
+        self.ocp = self.build_ocp(config)
+        self.solver: RTISolver | IpoptOCPSolver = self._make_solver(config.weights)
+        self.scaling: ActionScaling = config.scaling
+        self.shifts_per_step = warm_start_shifts(config.control_dt, config.dt)
+        self.normal = HorizontalNormal()
+        self._last_q: np.ndarray | None = None
+        self._ahead = False            # a QP for the next observation is prepared
+        self.last_stats: SolveStats = SolveStats()
+        self.last_command: np.ndarray | None = None
+
+    # -- what a subclass provides -----------------------------------------------------------------
+    def build_ocp(self, config: Any) -> OCP:
+        """The controller's least-squares OCP."""
+        raise NotImplementedError(f"{type(self).__name__} must define build_ocp(config)")
+
+    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
+                   normal_xy: np.ndarray) -> np.ndarray:
+        """The OCP's online parameters for a checked observation, the drone's model state and the
+        horizontal normal (with its fallback already applied)."""
+        raise NotImplementedError(f"{type(self).__name__} must define parameters(obs, state, normal_xy)")
+
+    def model_state(self, state: np.ndarray) -> np.ndarray:
+        """The OCP's state for a drone state [p, v_B, q] (identity unless the OCP augments it)."""
+        return state
+
+    def on_measurement(self, state: np.ndarray) -> None:
+        """Called once per measured state, before its command is computed (estimators)."""
+
+    # -- common -----------------------------------------------------------------------------------
+    def _make_solver(self, weights: Any) -> RTISolver | IpoptOCPSolver:
+        W, WN = weights.stage_vector(), weights.terminal_vector()
+        if self.config.backend == "ipopt":
+            return IpoptOCPSolver(self.ocp, W, WN)
+        return RTISolver(self.ocp, W, WN, self.config.solver)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Drop the warm start and everything remembered from the episode (the controller is
+        deterministic; ``seed`` is accepted for the common interface)."""
+        self.solver.reset()
+        self.normal.reset()
+        self._last_q = None
+        self._ahead = False
+        self.last_stats = SolveStats()
+        self.last_command = None
+
+    def set_weights(self, weights: Any) -> None:
+        """Switch weights: a weight object of the config's class or a set name. The RTI solver
+        takes them without recompiling (they are runtime inputs of the QP data); IPOPT's NLP has
+        them built in, so it is rebuilt."""
+        sets = self.config.WEIGHT_SETS
+        w = sets.get(weights) if isinstance(weights, str) else weights
+        wcls = self.config.WEIGHTS
+        if not isinstance(w, wcls):
+            raise ValueError(f"weights must be {wcls.__name__} or one of {list(sets)}, got {weights!r}")
+        if isinstance(self.solver, IpoptOCPSolver):
+            self.solver = self._make_solver(w)
+        else:
+            self.solver.set_weights(w.stage_vector(), w.terminal_vector())
+        self._ahead = False   # the prepared QP has the old weights
+
+    def _align(self, state: np.ndarray) -> np.ndarray:
+        """``state`` with its quaternion in the hemisphere of the previous step's: q and -q are
+        the same attitude, but the warm-started plan is linearised around one of them, and a
+        simulator may return the other mid-flight."""
+        if self._last_q is not None and float(np.dot(state[6:10], self._last_q)) < 0.0:
+            state = np.concatenate([state[0:6], -state[6:10]])
+        self._last_q = state[6:10].copy()
+        return state
+
+    def _solve(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """One full real-time iteration (prepare, feedback, shift) or one IPOPT solve for an
+        aligned drone state."""
+        xm = self.model_state(state)
+        solver = self.solver
+        if isinstance(solver, RTISolver):
+            if not solver.initialized:
+                solver.initialize(xm)
+            solver.prepare(params)
+            u = solver.feedback(xm)
+        else:
+            u = solver.solve(xm, params)
+        self._ahead = False
+        self._finish_step(u)
+        return u
+
+    def _finish_step(self, u: np.ndarray) -> None:
+        for _ in range(self.shifts_per_step):
+            self.solver.shift()
+        self.last_stats = self.solver.last_stats
+        self.last_command = u
+
+    @property
+    def predicted_state(self) -> np.ndarray | None:
+        """The plan's drone state at the next control step (its first stage after the shift);
+        None before the first step and when the control period is shorter than a stage."""
+        if self.last_command is None or not self.shifts_per_step:
+            return None
+        return self.solver.iterate[:NX]
+
+    def command_for(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """Physical command [p, q, r, T] for a drone state and the OCP's parameters directly
+        (one full step; for tests and callers that build their own parameters)."""
+        return self._solve(self._align(np.asarray(state, dtype=float)), params)
+
+    def command(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Physical command [p, q, r, T] for an observation (see the module docstring for the
+        schedule of preparation and feedback)."""
+        t0 = time.perf_counter()
+        o = check_observation(obs)
+        x = self._align(state_from_observation(o))
+        self.on_measurement(x)
+        if self._ahead:                      # only the feedback QP stands between obs and command
+            u = self.solver.feedback(self.model_state(x))
+            self._ahead = False
+            latency = (time.perf_counter() - t0) * 1e3
+            self._finish_step(u)
+        else:
+            nxy = self.normal.update(o["normal"], x[0:3], o["point"])
+            u = self._solve(x, self.parameters(o, x, nxy))
+            latency = (time.perf_counter() - t0) * 1e3
+        self.last_stats.latency_ms = latency
+        if self.config.prepare_ahead and isinstance(self.solver, RTISolver) and self.solver.initialized:
+            self._prepare_next(o, x)
+        return u
+
+    def _prepare_next(self, obs: Mapping[str, np.ndarray], state: np.ndarray) -> None:
+        """Linearise for the next control step at the predicted state, with the parameters
+        predicted for it (the point moved on by its velocity over one control period)."""
+        predicted = self.predicted_state
+        if predicted is None:
+            predicted = state
+        nxt = dict(obs)
+        nxt["point"] = obs["point"] + obs["point_velocity"] * self.config.control_dt
+        nxt["position"], nxt["velocity_body"], nxt["quaternion"] = predicted[0:3], predicted[3:6], predicted[6:10]
+        nxy = self.normal.update(nxt["normal"], predicted[0:3], nxt["point"])
+        self.solver.prepare(self.parameters(nxt, predicted, nxy))
+        self._ahead = True
+
+    def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        return self.scaling.to_action(self.command(obs))
+
+    @property
+    def predicted_states(self) -> np.ndarray:
+        """The current plan's drone states (N+1, 10) (shifted after each act; an augmented OCP
+        state is cut to the drone's)."""
+        return self.ocp.unpack(self.solver.iterate)[0][:, :NX]
+
+    @staticmethod
+    def world_velocity(state: np.ndarray) -> np.ndarray:
+        """R(q) v_B of a drone state."""
+        return quat_to_rotmat_np(state[6:10]) @ state[3:6]

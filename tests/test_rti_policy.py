@@ -1,0 +1,140 @@
+"""The one RTI policy base: a new MPC is its OCP, weights and parameters; the base does the rest
+(solver choice, reset, weights, normal fallback, quaternion sign, preparation/feedback)."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start, run_closed_loop
+from controllers.nmpc import NMPCPolicy
+from controllers.pampc import PAMPCPolicy
+from controllers.rti import OCP, RTIOptions, RTISolver
+from controllers.rti_policy import LSQWeights, MPCConfig, RTIPolicy
+from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy
+from wt_inspect_env.dynamics import NU, NX, QuadrotorModel
+from wt_inspect_env.geometry import heading_and_distance, standoff_position
+from wt_inspect_env.quadrotor import get_preset
+
+UNCOMPILED = RTIOptions(qp_mode="speed_abs", compiled=False)
+
+
+# -- a whole new MPC in a few lines: hold the stand-off position, level, at hover ---------------
+@dataclass(frozen=True)
+class HoldWeights(LSQWeights):
+    position: float = 40.0
+    velocity: float = 3.0
+    tilt: float = 60.0
+    inputs: tuple[float, ...] = (1.0, 1.0, 1.0, 0.05)
+    TERMINAL = (("position", 3), ("velocity", 3), ("tilt", 2))
+    STAGE = TERMINAL + (("inputs", 4),)
+
+
+@dataclass(frozen=True)
+class HoldConfig(MPCConfig):
+    WEIGHTS = HoldWeights
+    WEIGHT_SETS = {"default": HoldWeights()}
+    weights: HoldWeights | str = "default"
+
+
+class HoldPolicy(RTIPolicy):
+    config_class = HoldConfig
+
+    def build_ocp(self, config: HoldConfig) -> OCP:
+        x, u, p = ca.SX.sym("x", NX), ca.SX.sym("u", NU), ca.SX.sym("p", 3)
+        state_res = ca.vertcat(x[0:3] - p, x[3:6], x[6:8])
+        F = ca.Function("hold_F", [x, u, p], [QuadrotorModel(config.params).rk4_expr(x, u, config.dt)])
+        r = ca.Function("hold_r", [x, u, p], [ca.vertcat(state_res, u - ca.DM(config.hover_input))])
+        rN = ca.Function("hold_rN", [x, p], [state_res])
+        return OCP("hold", F, r, rN, config.horizon, config.dt, config.scaling.lower, config.scaling.upper,
+                   config.hover_input)
+
+    def parameters(self, obs, state, normal_xy):
+        return standoff_position(obs["point"], normal_xy, self.config.d_ref)
+
+
+def test_a_new_mpc_is_its_ocp_and_parameters():
+    params = get_preset("matrice100")
+    policy = HoldPolicy(params=params, solver=UNCOMPILED)
+    sc = SurfacePass(speed=0.0)
+    res = run_closed_loop(policy, ModelPlant(params), sc, 400, offset_start(sc, 7.0), policy.scaling)
+    target = standoff_position(sc.point(0), sc.normal[:2], 7.0)
+    assert np.linalg.norm(res.states[0, :3] - target) > 1.0
+    assert np.linalg.norm(res.states[-1, :3] - target) < 0.1      # flown to the pose and held
+    assert res.fallbacks == 0
+    # the base's machinery comes with it: weights by name or object, overrides, reset
+    policy.set_weights(HoldWeights(position=10.0))
+    assert policy.solver.stage_weights[0] == 10.0
+    with pytest.raises(ValueError, match="weights"):
+        policy.set_weights("nonsense")
+    with pytest.raises(ValueError, match="unknown HoldConfig option"):
+        HoldPolicy(horizn=3)
+    with pytest.raises(ValueError, match=r"weights\.inputs\[3\]"):
+        HoldWeights(inputs=(1.0, 1.0, 1.0, 0.0))
+
+
+@pytest.mark.parametrize("cls", [VTNMPCPolicy, NMPCPolicy, PAMPCPolicy])
+def test_every_controller_has_weights_of_one_shape(cls):
+    policy = cls(solver=UNCOMPILED)
+    w = policy.config.weights
+    assert isinstance(w, LSQWeights)
+    assert w.stage_vector().shape == (policy.ocp.ny,) and w.terminal_vector().shape == (policy.ocp.ny_terminal,)
+    np.testing.assert_array_equal(policy.solver.stage_weights, w.stage_vector())
+
+
+def test_quaternion_sign_is_aligned_for_every_controller():
+    """-q is the same attitude: a simulator returning it mid-flight must not change the command
+    (the VT-NMPC did not align before the base did)."""
+    sc = SurfacePass()
+    x = offset_start(sc, 7.0)
+    for cls in (VTNMPCPolicy, NMPCPolicy):
+        a, b = cls(solver=UNCOMPILED), cls(solver=UNCOMPILED)
+        obs = make_observation(x, sc.point(0), np.asarray(sc.normal), sc.velocity())
+        a.act(obs), b.act(obs)
+        flipped = dict(obs, quaternion=-obs["quaternion"])
+        np.testing.assert_allclose(a.act(obs), b.act(flipped), atol=1e-9)
+
+
+def test_set_weights_rebuilds_ipopt():
+    policy = NMPCPolicy(backend="ipopt")
+    sc = SurfacePass()
+    obs = make_observation(offset_start(sc, 7.0), sc.point(0), np.asarray(sc.normal), sc.velocity())
+    u0 = policy.act(obs)
+    policy.reset()
+    policy.set_weights(type(policy.config.weights)(position=(1.0, 1.0, 1.0)))
+    assert not np.allclose(policy.act(obs), u0)
+
+
+@pytest.mark.parametrize("options", [{}, VTNMPC_PLUS])
+def test_prepare_ahead_runs_only_the_feedback_after_the_command(options):
+    """With prepare_ahead the next step's QP is prepared (at the predicted state) before act
+    returns; the next act solves it for the measurement, and the closed loop is as good."""
+    params = get_preset("matrice100")
+    sc = SurfacePass()
+    x0 = offset_start(sc, 7.0)
+    runs = {}
+    for ahead in (False, True):
+        policy = VTNMPCPolicy(params=params, prepare_ahead=ahead, solver=UNCOMPILED, **options)
+        runs[ahead] = run_closed_loop(policy, ModelPlant(params), sc, 800, x0, policy.scaling)
+        if ahead:
+            assert isinstance(policy.solver, RTISolver) and policy.solver._prepared   # ready for the next obs
+            st = policy.last_stats
+            assert st.latency_ms < st.solve_ms + 0.05   # the preparation is not between obs and command
+    for r in runs.values():   # (VT-NMPC+ settles 0.15 m off on this drag-only pass, either way)
+        assert r.fallbacks == 0 and abs(r.distance[-1] - 7.0) < 0.2 and r.heading[-1] > 0.99
+    # one step of parameter lag (an observer update one step later), nothing more
+    assert np.max(np.abs(runs[True].states[:, :3] - runs[False].states[:, :3])) < 0.01
+    assert abs(runs[True].distance[-1] - runs[False].distance[-1]) < 0.01
+
+
+def test_prepare_ahead_is_off_for_ipopt_and_validated():
+    with pytest.raises(ValueError, match="prepare_ahead"):
+        VTNMPCPolicy(prepare_ahead="yes")
+    sc = SurfacePass()
+    policy = VTNMPCPolicy(backend="ipopt", prepare_ahead=True)
+    obs = make_observation(offset_start(sc, 7.0), sc.point(0), np.asarray(sc.normal), sc.velocity())
+    policy.act(obs)
+    h, d = heading_and_distance(obs["position"], obs["quaternion"], obs["point"])
+    assert not policy.last_stats.fallback and d > 0
