@@ -1,12 +1,16 @@
-"""``wt-inspect bench train``: training throughput (simulator steps per second) with subprocess envs.
+"""``wt-inspect bench train``: training throughput (simulator steps per second), vector env vs subprocesses.
 
-Two numbers, each the median of several repeats after a warm-up:
+For each backend - the native vector env (``--n-envs`` drones in this process, the default of
+``wt-inspect train``) and, as the reference timed in the same run, SB3's subprocess vector env
+(``--ref-n-envs`` single envs, one per process, the path training used before) - two numbers,
+each the median of several repeats after a warm-up:
 
-* ``vecenv``: the vectorised agent envs alone (``n_envs`` subprocesses, the recipe's wrappers,
-  VecNormalize), driven by random policy actions - the ceiling set by simulation and inter-process
-  traffic;
+* ``vecenv``: the agent envs alone (the recipe's features, actions, shaping, VecNormalize),
+  driven by random policy actions - the ceiling set by simulation (and inter-process traffic);
 * ``learn``: ``model.learn`` of the recipe's algorithm for the same number of steps - what a
   training run really gets, including network forward passes and gradient updates.
+
+The vector figures are also printed as ratios to the subprocess ones.
 
 Steps are simulator control steps (100 Hz), so an ``action_repeat`` of k counts k per decision.
 The machine's other load is not controlled: run it on a quiet machine for comparable numbers.
@@ -30,7 +34,7 @@ from .policy import ALGOS
 
 
 def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: int = 20_000,
-              repeats: int = 3, recipe: str | None = None, seed: int = 0) -> dict:
+              repeats: int = 3, recipe: str | None = None, seed: int = 0, backend: str = "vector") -> dict:
     """Run the benchmark and return its summary (see the module docstring)."""
     check_choice("algorithm", algo, ALGOS)
     check_choice("task", task, TASKS)
@@ -50,8 +54,8 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
     torch.set_num_threads(rec.torch_threads)
     k = rec.spec.action_repeat
     decisions = math.ceil(steps / (k * n_envs))     # vector steps
-    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs, shaping=rec.shaping,
-                                     variants=rec.env_variants, weights=rec.env_variant_weights),
+    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
+                                     variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed),
                         gamma=float(rec.algo_kwargs.get("gamma", 0.99)))
     rng = np.random.default_rng(seed)
     vec_rates, learn_rates = [], []
@@ -81,7 +85,7 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
     finally:
         venv.close()
     return {
-        "benchmark": "train",
+        "benchmark": "train", "backend": backend,
         "algo": algo, "task": task, "n_envs": n_envs, "action_repeat": k,
         "steps_per_repeat": decisions * n_envs * k, "repeats": repeats,
         "vecenv_steps_per_s": statistics.median(vec_rates),
@@ -97,27 +101,34 @@ def main(argv: list[str], prog: str = "wt-inspect bench train") -> int:
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--algo", default="ppo", help=f"algorithm: {', '.join(ALGOS)}")
     ap.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)}")
-    ap.add_argument("--n-envs", type=int, default=2)
+    ap.add_argument("--n-envs", type=int, default=16, help="drones of the vector env (default 16)")
+    ap.add_argument("--ref-n-envs", type=int, default=2, help="subprocess envs of the reference (default 2)")
     ap.add_argument("--steps", type=int, default=20_000, help="simulator steps per repeat")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--recipe", default=None)
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     args = ap.parse_args(argv)
     try:
-        r = run_bench(args.algo, args.task, args.n_envs, args.steps, args.repeats, args.recipe)
+        vec = run_bench(args.algo, args.task, args.n_envs, args.steps, args.repeats, args.recipe, backend="vector")
+        ref = run_bench(args.algo, args.task, args.ref_n_envs, args.steps, args.repeats, args.recipe,
+                        backend="subprocess")
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    out = {"vector": vec, "subprocess": ref,
+           "vecenv_ratio": vec["vecenv_steps_per_s"] / ref["vecenv_steps_per_s"],
+           "learn_ratio": vec["learn_steps_per_s"] / ref["learn_steps_per_s"]}
     if args.json:
-        print(json.dumps(r))
-    else:
-        print(f"training throughput, {r['algo']} on {r['task']}, {r['n_envs']} subprocess envs, "
-              f"action repeat {r['action_repeat']} (median of {r['repeats']}, {r['steps_per_repeat']} steps each):")
-        print(f"  vec env alone : {r['vecenv_steps_per_s']:8.0f} env steps/s")
-        print(f"  model.learn   : {r['learn_steps_per_s']:8.0f} env steps/s "
-              f"(min {r['learn_steps_per_s_min']:.0f}, max {r['learn_steps_per_s_max']:.0f}) "
-              f"-> {r['minutes_per_2M_steps']:.1f} min per 2 M steps")
-        print(f"  (cpus {r['cpus']}, load average {r['load_average']:.2f})")
+        print(json.dumps(out))
+        return 0
+    print(f"training throughput, {vec['algo']} on {vec['task']}, action repeat {vec['action_repeat']} "
+          f"(median of {vec['repeats']}, {vec['steps_per_repeat']} steps each), env steps/s:")
+    print(f"  {'':22} {'vec env alone':>14} {'model.learn':>12} {'min/2M steps':>13}")
+    for label, r in ((f"vector, {vec['n_envs']} drones", vec), (f"subprocess, {ref['n_envs']} envs", ref)):
+        print(f"  {label:22} {r['vecenv_steps_per_s']:14.0f} {r['learn_steps_per_s']:12.0f} "
+              f"{r['minutes_per_2M_steps']:13.1f}")
+    print(f"  ratio vector / subprocess: vec env {out['vecenv_ratio']:.2f}x, learn {out['learn_ratio']:.2f}x")
+    print(f"  (cpus {vec['cpus']}, load average {vec['load_average']:.2f})")
     return 0
 
 

@@ -18,7 +18,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}")
     p.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)} (default surface)")
     p.add_argument("--timesteps", type=int, required=True, help="simulator steps to train in this run")
-    p.add_argument("--n-envs", type=int, default=2, help="parallel environments (subprocesses if > 1)")
+    p.add_argument("--n-envs", type=int, default=16, help="parallel environments (drones of the vector env; default 16)")
+    p.add_argument("--backend", default="vector", choices=["vector", "subprocess", "dummy"],
+                   help="vector: all drones in one batched env in this process (default); subprocess: one env per "
+                        "process (SB3 SubprocVecEnv); dummy: single envs in turn in this process")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--recipe", default=None,
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
@@ -36,7 +39,7 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
                         resume=args.resume, seed=args.seed, max_minutes=args.max_minutes,
-                        progress_bar=not args.no_progress, verbose=args.verbose)
+                        progress_bar=not args.no_progress, verbose=args.verbose, backend=args.backend)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -76,14 +76,27 @@ def _env_factory(task: str, options: Mapping[str, Any], spec: AgentSpec, shaping
     return lambda: make_agent_env(task, opts, spec, shaping, variants, weights)
 
 
+BACKENDS: tuple[str, ...] = ("vector", "subprocess", "dummy")
+
+
 def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs: int,
-                 subprocess: bool | None = None, shaping: ShapingConfig | None = None,
-                 variants: Sequence[Mapping[str, Any]] = (), weights: Sequence[float] | None = None):
-    """``n_envs`` agent envs, in subprocesses unless ``n_envs == 1`` (or ``subprocess=False``)."""
-    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
+                 backend: str = "vector", shaping: ShapingConfig | None = None,
+                 variants: Sequence[Mapping[str, Any]] = (), weights: Sequence[float] | None = None,
+                 seed: int = 0):
+    """``n_envs`` agent envs as one stable-baselines3 VecEnv.
+
+    ``backend``: ``vector`` (default) - all drones in this process, in the native batched vector
+    env (:mod:`agents.vec_env`), with episode statistics from SB3's ``VecMonitor``;
+    ``subprocess`` - one single env per subprocess (SB3's ``SubprocVecEnv``); ``dummy`` - single
+    envs stepped in turn in this process (SB3's ``DummyVecEnv``).
+    """
+    check_choice("backend", backend, BACKENDS)
+    from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
+    if backend == "vector":
+        from .vec_env import make_inspection_vec_env
+        return VecMonitor(make_inspection_vec_env(task, options, spec, n_envs, shaping, variants, weights, seed))
     fns = [_env_factory(task, options, spec, shaping, variants, weights) for _ in range(n_envs)]
-    use_sub = n_envs > 1 if subprocess is None else subprocess
-    return SubprocVecEnv(fns, start_method="forkserver") if use_sub else DummyVecEnv(fns)
+    return SubprocVecEnv(fns, start_method="forkserver") if backend == "subprocess" else DummyVecEnv(fns)
 
 
 def run_episode(policy, env: gym.Env, seed: int) -> dict[str, Any]:
@@ -186,8 +199,9 @@ class TrainingRun:
 
     def __init__(self, *, algo: str, task: str, recipe: Recipe, out: Path, n_envs: int, seed: int,
                  target_env_steps: int, env_steps: int, wall_before: float, max_seconds: float | None,
-                 progress_bar: bool, vecnormalize) -> None:
+                 progress_bar: bool, vecnormalize, backend: str = "vector") -> None:
         self.algo, self.task, self.recipe, self.out = algo, task, recipe, out
+        self.backend = backend
         self.spec = recipe.spec
         self.n_envs, self.seed = n_envs, seed
         self.env_steps = env_steps
@@ -265,7 +279,8 @@ class TrainingRun:
 
     def training_info(self) -> dict[str, Any]:
         return {"algo": self.algo, "task": self.task, "env_steps": self.env_steps,
-                "wall_time_s": round(self.wall_time(), 1), "n_envs": self.n_envs, "seed": self.seed}
+                "wall_time_s": round(self.wall_time(), 1), "n_envs": self.n_envs, "seed": self.seed,
+                "backend": self.backend}
 
     def save(self, model, path: Path, evaluation: Mapping[str, Any] | None = None) -> Path:
         extra = {"training": self.training_info(), "recipe": self.recipe.to_dict()}
@@ -321,7 +336,7 @@ def _positive_int(name: str, value: Any) -> int:
 def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
           recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
           max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
-          subprocess: bool | None = None) -> dict[str, Any]:
+          backend: str = "vector") -> dict[str, Any]:
     """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
 
     ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
@@ -332,6 +347,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     """
     check_choice("algorithm", algo, ALGOS)
     check_choice("task", task, TASKS)
+    check_choice("backend", backend, BACKENDS)
     timesteps = _positive_int("timesteps", timesteps)
     n_envs = _positive_int("n_envs", n_envs)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -371,8 +387,8 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
     cls = algo_class(algo)
-    venv = make_vec_env(task, rec.env, rec.spec, n_envs, subprocess=subprocess, shaping=rec.shaping,
-                        variants=rec.env_variants, weights=rec.env_variant_weights)
+    venv = make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
+                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
     norm = dict(rec.normalize)
     use_norm = bool(norm.get("obs", True) or norm.get("reward", True))
     gamma = float(rec.algo_kwargs.get("gamma", 0.99))
@@ -398,7 +414,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     run = TrainingRun(algo=algo, task=task, recipe=rec, out=out, n_envs=n_envs, seed=seed,
                       target_env_steps=env_steps0 + timesteps, env_steps=env_steps0, wall_before=wall0,
                       max_seconds=None if max_minutes is None else 60.0 * max_minutes,
-                      progress_bar=progress_bar, vecnormalize=vecnorm)
+                      progress_bar=progress_bar, vecnormalize=vecnorm, backend=backend)
     callback = _callback_class()(run)
     agent_steps = math.ceil(timesteps / rec.spec.action_repeat)
     try:

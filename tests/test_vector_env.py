@@ -198,3 +198,76 @@ def test_drones_do_not_collide_with_each_other_but_with_the_ground():
         assert sim.in_collision.tolist() == [False, True]
     finally:
         venv.close()
+
+
+# ---------------------------------------------------------------------------- the agent adapter
+def test_batched_agent_interface_equals_the_scalar_encoder_and_decoder():
+    from agents.vec_env import BatchedAgentInterface
+    from agents.wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction
+
+    groups = ["ideal_body", "point_body", "velocity_body", "gravity_body", "heading", "body_rates",
+              "normal_body", "integral", "last_action", "progress", "coverage"]
+    env = gym.make(ENV, start_noise=2.0).unwrapped
+    rng = np.random.default_rng(0)
+    obs_rows = []
+    for i in range(5):
+        o, _ = env.reset(seed=i)
+        for _ in range(int(rng.integers(1, 30))):
+            o, *_ = env.step(np.clip(env.scaling.hover_action() + rng.normal(0, 0.3, 4), -1, 1))
+        obs_rows.append(o)
+    env.close()
+    obs = {k: np.stack([o[k] for o in obs_rows]) for k in obs_rows[0]}
+    for mode in ("rates", "attitude"):
+        spec = AgentSpec(features={"groups": groups}, action={"mode": mode})
+        batch = BatchedAgentInterface(spec, 5, standoff=7.0, dt=env.dt, scaling=env.scaling)
+        encs = [FeatureEncoder(spec.features, standoff=7.0, dt=env.dt, max_rate=env.scaling.max_rate)
+                for _ in range(5)]
+        dec = ResidualHoverAction(spec.action, env.scaling)
+        u = rng.uniform(-1, 1, (5, 4))
+        batch.reset(np.arange(5))
+        batch.note_action(u)
+        for e, ui in zip(encs, u):
+            e.reset()
+            e.note_action(ui)
+        for _ in range(3):      # the integral builds up over updates
+            batch.update(np.arange(5), obs)
+            scalar = [e.update({k: v[i] for k, v in obs.items()}) for i, e in enumerate(encs)]
+        np.testing.assert_array_equal(batch.features(), np.stack(scalar))
+        np.testing.assert_array_equal(batch.decode(u, obs["quaternion"]),
+                                      np.stack([dec(u[i], obs["quaternion"][i]) for i in range(5)]))
+
+
+@pytest.mark.slow
+def test_sb3_vector_backend_steps_resets_and_reports_episodes():
+    pytest.importorskip("stable_baselines3")
+    from agents.recipe import default_recipe_path, load_recipe
+    from agents.training import make_vec_env
+
+    rec = load_recipe(default_recipe_path("ppo"))
+    venv = make_vec_env("surface", {**rec.env, "time_limit_s": 0.5}, rec.spec, 3, backend="vector",
+                        shaping=rec.shaping, seed=5)
+    try:
+        obs = venv.reset()
+        assert obs.shape == (3, rec.spec.features.size) and venv.observation_space.contains(obs[0])
+        ends = 0
+        for _ in range(40):
+            obs, rew, done, infos = venv.step(np.zeros((3, 4), dtype=np.float32))
+            assert rew.shape == (3,) and np.isfinite(rew).all()
+            for d, info in zip(done, infos):
+                assert 1 <= info["env_steps"] <= rec.spec.action_repeat
+                if d:
+                    ends += 1
+                    assert info["terminal_observation"].shape == obs[0].shape
+                    assert "episode" in info and 0.0 <= info["metrics"]["coverage"] <= 1.0
+        assert ends >= 3      # 0.5 s episodes at 25 decisions/s: every drone ended at least once
+    finally:
+        venv.close()
+
+
+def test_vector_backend_refuses_non_wind_variants():
+    pytest.importorskip("stable_baselines3")
+    from agents.training import make_vec_env
+    from agents.wrappers import AgentSpec
+
+    with pytest.raises(ValueError, match=r"env_variants\[0\] varies \['standoff'\]"):
+        make_vec_env("surface", {}, AgentSpec(), 2, variants=[{"standoff": 6.0}])

@@ -63,6 +63,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
     metadata = {"render_modes": [], "autoreset_mode": AutoresetMode.SAME_STEP}
 
     def __init__(self, num_envs: int = 1, render_mode: str | None = None, winds: Sequence[Any] | None = None,
+                 wind_variants: Sequence[Any] | None = None, wind_variant_weights: Sequence[float] | None = None,
                  **options: Any) -> None:
         n = self.num_envs = _check_num_envs(num_envs)
         if render_mode is not None:
@@ -89,6 +90,29 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                     raise ValueError(f"winds[{i}]: {exc}") from None
         else:
             self.winds = [make_wind(cfg.wind) for _ in range(n)]
+        # Per-episode wind variants (training: e.g. a mix of wind speeds): every drone holds its own
+        # field of each variant and draws one at each reset from a generator of its own, so the
+        # main per-drone stream (start pose, wind seed) stays the single env's.
+        self._variants: list[list[Any]] | None = None
+        if wind_variants is not None:
+            if winds is not None:
+                raise ValueError("give either winds (fixed per drone) or wind_variants (drawn per episode), not both")
+            if isinstance(wind_variants, (str, bytes)) or not isinstance(wind_variants, Sequence) or not wind_variants:
+                raise ValueError(f"wind_variants must be a non-empty list of wind specs, got {wind_variants!r}")
+            w = np.ones(len(wind_variants)) if wind_variant_weights is None else np.asarray(wind_variant_weights, float)
+            if w.shape != (len(wind_variants),) or not np.all(np.isfinite(w)) or np.any(w <= 0):
+                raise ValueError(f"wind_variant_weights must be {len(wind_variants)} positive numbers, "
+                                 f"got {wind_variant_weights!r}")
+            self._variant_p = w / w.sum()
+            self._variants = []
+            for j, spec in enumerate(wind_variants):
+                try:
+                    self._variants.append([make_wind(spec) for _ in range(n)])
+                except ValueError as exc:
+                    raise ValueError(f"wind_variants[{j}]: {exc}") from None
+            self.winds = [self._variants[0][i] for i in range(n)]
+        self._variant_rngs: list[np.random.Generator | None] = [None] * n
+        self.variant = np.zeros(n, dtype=np.int64)
         self.params = cfg.drone
         self.scaling = ActionScaling.from_params(self.params)
         self._lo, self._hi = self.scaling.lower, self.scaling.upper
@@ -150,6 +174,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                 if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
                     raise ValueError(f"seed[{i}] must be a non-negative integer or None, got {s!r}")
                 self._rngs[i], _ = seeding.np_random(int(s))
+                self._variant_rngs[i] = np.random.default_rng([int(s), 0x5A17])
         idx = np.arange(n)
         for i in range(n):
             self._reset_drone(i)
@@ -213,7 +238,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                 final_obs = {k: v[i].copy() for k, v in obs.items()}
                 final_info = {"metrics": self.metrics(i), "termination": _TERMINATIONS[code[i]],
                               "mission_complete": bool(complete[i]), "coverage": float(self.n_seen[i] / self.n_triangles),
-                              "episode_steps": int(self.steps[i])}
+                              "episode_steps": int(self.steps[i]), "variant": int(self.variant[i])}
                 infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
                 self._reset_drone(i)
             self._frames(ended)
@@ -244,6 +269,12 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
     def _reset_drone(self, i: int) -> None:
         """:meth:`WindTurbineInspectionEnv.reset` for drone ``i``, up to the first frame."""
         rng, cfg = self._rng(i), self.config
+        if self._variants is not None:
+            if self._variant_rngs[i] is None:
+                self._variant_rngs[i] = np.random.default_rng()
+            self.variant[i] = int(self._variant_rngs[i].choice(len(self._variants), p=self._variant_p))
+            self.winds[i] = self._variants[self.variant[i]][i]
+            self.sim.set_wind(i, self.winds[i])
         self.winds[i].reset(int(rng.integers(2**63 - 1)))
         self._set_phase(i, 0)
         frac = float(rng.uniform(0.0, cfg.start_progress)) if cfg.start_progress > 0 else 0.0

@@ -182,6 +182,11 @@ class BatchedQuadrotorSim:
         p.setCollisionFilterGroupMask(self.body_ids[i], -1, DRONE_COLLISION_GROUP, mask,
                                       physicsClientId=self._client)
 
+    def set_wind(self, i: int, wind: WindField | None) -> None:
+        """Give drone ``i`` another wind field (used from its next reset on)."""
+        self.winds[i] = wind
+        self._varying = [j for j, w in enumerate(self.winds) if w is not None and not w.is_constant]
+
     def set_geometry(self, i: int, g: int) -> None:
         """Let drone ``i`` collide with (and see) geometry ``g`` only."""
         if not 0 <= g < len(self.geometry_ids):
