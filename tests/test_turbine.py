@@ -184,3 +184,110 @@ def test_bad_spec_combinations():
     with pytest.raises(ValueError, match="colour"):
         build_turbine(colour="white")
     assert build_turbine(blade_length=40.0).spec.blade_length == 40.0
+
+
+# --------------------------------------------------------------------------- loading without labels
+def _write(tris: np.ndarray, path) -> None:
+    import trimesh
+    n = len(tris)
+    trimesh.Trimesh(vertices=tris.reshape(-1, 3), faces=np.arange(3 * n).reshape(n, 3), process=False).export(
+        str(path))
+
+
+@pytest.mark.parametrize("suffix", [".stl", ".obj"])
+def test_own_export_loads_back_without_labels(turb, tmp_path, suffix):
+    """The issue's round trip: no face lists, the blades (with their caps) are recognised by shape,
+    tower and hub become the obstacle, and the plan is the built turbine's."""
+    from wt_inspect_env.planner import cluster_surfaces, plan_inspection
+    path = turb.export(tmp_path / f"t{suffix}")
+    loaded = load_turbine_mesh(path)
+    m, c = len(turb.blade_vertices), len(turb.cap_vertices)
+    np.testing.assert_allclose(loaded.blade_vertices, np.concatenate([turb.blade_vertices, turb.cap_vertices]),
+                               atol=1e-4)
+    assert len(loaded.obstacle_mesh.faces) == len(turb.obstacle_mesh.faces)
+    np.testing.assert_allclose(loaded.rotor_center, turb.rotor_center, atol=1e-3)
+    np.testing.assert_allclose(loaded.rotor_axis, turb.rotor_axis, atol=1e-4)
+    surfaces, ignored = cluster_surfaces(loaded)
+    assert len(surfaces) == 12
+    np.testing.assert_array_equal(ignored, np.arange(m, m + c))           # the caps
+    assert plan_inspection(loaded).tour_length == pytest.approx(plan_inspection(turb).tour_length, abs=1e-2)
+
+
+def test_units_up_axis_and_ground(turb, tmp_path):
+    """PLY in millimetres, GLB with glTF's +Y up (default for .glb), a z-up file whose origin is at
+    the hub: each comes back as the same turbine in metres, z up, standing on the ground."""
+    tris = turb.mesh.triangles
+    ref = load_turbine_mesh(turb.export(tmp_path / "ref.stl"))
+    _write(tris * 1000.0, tmp_path / "t.ply")
+    _write(tris @ np.array([[1.0, 0, 0], [0, 0, 1.0], [0, -1.0, 0]]).T, tmp_path / "t.glb")   # z -> y
+    _write(tris - np.array([0.0, 0.0, 120.0]), tmp_path / "hub_origin.stl")
+    _write(tris @ np.array([[0.0, 0, 1.0], [0, 1.0, 0], [-1.0, 0, 0]]).T, tmp_path / "x_up.obj")  # z -> x
+    for path, kw in (("t.ply", {"unit": "mm"}), ("t.glb", {}), ("hub_origin.stl", {"place_on_ground": True}),
+                     ("x_up.obj", {"up_axis": "x"})):
+        got = load_turbine_mesh(tmp_path / path, **kw)
+        np.testing.assert_allclose(got.blade_vertices, ref.blade_vertices, atol=2e-3, err_msg=path)
+        np.testing.assert_allclose(got.rotor_center, ref.rotor_center, atol=2e-3, err_msg=path)
+    # the same options as a dict (what gym.make's turbine_mesh accepts)
+    got = load_turbine_mesh({"path": str(tmp_path / "t.ply"), "unit": 0.001})
+    np.testing.assert_allclose(got.blade_vertices, ref.blade_vertices, atol=2e-3)
+    with pytest.raises(ValueError, match="below the ground.*place_on_ground"):
+        load_turbine_mesh(tmp_path / "hub_origin.stl")
+    with pytest.raises(ValueError, match="below the ground.*up_axis"):
+        load_turbine_mesh(tmp_path / "t.glb", up_axis="-z")
+
+
+def test_unrecognisable_parts_say_what_was_found_and_what_to_give(turb, tmp_path):
+    # blades bridged at the root into one rotor part (as a CAD export with the hub fused would be)
+    roots = [turb.blade_vertices[turb.triangle_blade == k].reshape(-1, 3) for k in range(3)]
+    c = turb.rotor_center
+    bridge = np.stack([r[np.argmin(np.linalg.norm(r - c, axis=1))] for r in roots])[None]
+    _write(np.concatenate([turb.mesh.triangles, bridge]), tmp_path / "fused.stl")
+    with pytest.raises(ValueError) as err:
+        load_turbine_mesh(tmp_path / "fused.stl")
+    msg = str(err.value)
+    assert "\n" not in msg and "found 2 connected parts" in msg and "blade_faces" in msg and "up_axis" in msg
+    # with the faces given, the same file loads
+    m = len(turb.blade_vertices)
+    assert load_turbine_mesh(tmp_path / "fused.stl", blade_faces=np.arange(m)).n_blade_triangles == m
+    # only a tower
+    _write(np.asarray(turb.obstacle_mesh.triangles), tmp_path / "tower.stl")
+    with pytest.raises(ValueError, match="no elongated part.*blade_faces"):
+        load_turbine_mesh(tmp_path / "tower.stl")
+
+
+@pytest.mark.parametrize("kw,match", [
+    ({"unit": "furlong"}, "unit"), ({"unit": -1.0}, "unit"), ({"up_axis": "w"}, "up_axis"),
+    ({"place_on_ground": "yes"}, "place_on_ground"), ({"scale": 2.0}, "scale"),
+])
+def test_bad_load_options_name_the_field(turb, tmp_path, kw, match):
+    path = turb.export(tmp_path / "t.stl")
+    with pytest.raises(ValueError, match=match):
+        load_turbine_mesh(path, **kw)
+    with pytest.raises(ValueError, match="path"):
+        load_turbine_mesh({"unit": "mm"})
+    (tmp_path / "t.xyz").write_text("1 2 3\n")
+    with pytest.raises(ValueError, match="format 'xyz'"):
+        load_turbine_mesh(tmp_path / "t.xyz")
+
+
+def test_env_flies_the_exported_turbine(turb, tmp_path):
+    """gym.make(..., turbine_mesh=<wt-inspect plan's turbine.stl>) builds the same mission."""
+    import gymnasium as gym
+    import wt_inspect_env  # noqa: F401 - registers the ids
+    path = turb.export(tmp_path / "turbine.stl")
+    env = gym.make("WindTurbineInspection-v0", turbine_mesh=str(path), wind="none")
+    ref = gym.make("WindTurbineInspection-v0", wind="none")
+    try:
+        env.reset(seed=0)
+        ref.reset(seed=0)
+        a, b = env.unwrapped.mission, ref.unwrapped.mission
+        assert a.plan.tour_length == pytest.approx(b.plan.tour_length, abs=1e-2)
+        assert len(a.inspected) == len(b.inspected) and len(a.turbines) == len(b.turbines) == 2
+        assert sorted(t.surface for t in a.plan.tour) == list(range(12))
+        # the mirror-symmetric rotor has tours of equal length; float noise of the file's 32-bit
+        # coordinates may pick another of them, so the flown path agrees to a percent only
+        assert a.plan.path_length == pytest.approx(b.plan.path_length, rel=0.01)
+        assert a.plan.min_clearance() >= a.plan.config.clearance
+    finally:
+        env.close()
+        ref.close()

@@ -45,10 +45,11 @@ class PlannerConfig:
     max_end_trim
         How far [m] an end of a surface's centre line may be moved inwards when the stand-off
         at that end is not clear of the turbine (e.g. the root of a back face whose stand-off
-        passes behind a large hub). The trimmed end stays in the camera's image from the new end
-        node (the default camera's footprint is about 6 x 4 m at a 6-7 m stand-off, so 1 m keeps
-        the root row well inside it); a surface that needs more trimming, or whose stand-off is
-        blocked away from its ends, is not inspectable in that rotor position. 0 disables it.
+        passes behind a large hub); ``None``: a quarter of the stand-off. The trimmed end must
+        stay in the camera's image from the new end node: the default camera's image is 0.65 d_ref
+        high (4.6 m at 7 m), so a quarter of d_ref keeps the root row inside its half height with
+        margin. A surface that needs more trimming, or whose stand-off is blocked away from its
+        ends, is not inspectable in that rotor position. 0 disables trimming.
     """
 
     standoff: float = 7.0
@@ -61,7 +62,7 @@ class PlannerConfig:
     check_step: float = 0.25
     standoff_mode: str = "horizontal"
     cluster_angle_deg: float = 20.0
-    max_end_trim: float = 1.0
+    max_end_trim: float | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -85,7 +86,13 @@ class PlannerConfig:
             raise ValueError(f"check_step must not exceed clearance ({self.clearance}), got {self.check_step!r}")
         check_choice("standoff_mode", self.standoff_mode, STANDOFF_MODES)
         put("cluster_angle_deg", check_range("cluster_angle_deg", self.cluster_angle_deg, 1.0, 60.0))
-        put("max_end_trim", check_range("max_end_trim", self.max_end_trim, 0.0, self.standoff))
+        if self.max_end_trim is not None:
+            put("max_end_trim", check_range("max_end_trim", self.max_end_trim, 0.0, self.standoff))
+
+    @property
+    def end_trim_limit(self) -> float:
+        """``max_end_trim`` resolved (a quarter of the stand-off when ``None``)."""
+        return 0.25 * self.standoff if self.max_end_trim is None else self.max_end_trim
 
     @classmethod
     def from_options(cls, options: Mapping[str, Any], base: "PlannerConfig | None" = None) -> "PlannerConfig":

@@ -13,7 +13,7 @@ surfaces on the turned rotor (points of phase 2 are in world coordinates on the 
 
 "Stand-off clear" allows trimming: where only the ends of a surface's stand-off line come too
 close to the turbine (the root of a back face passing behind a large hub), the centre line's end
-nodes move inwards to where it clears, by at most ``max_end_trim``; ``Surface.trim`` and the
+nodes move inwards to where it clears, by at most ``max_end_trim`` (default a quarter of the stand-off); ``Surface.trim`` and the
 summary's ``trimmed_m`` say by how much.
 
 Ordering is exact for the whole two-phase problem: for every way phase 1 can finish (each exit
@@ -260,7 +260,7 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     why1: dict[int, str] = {}
     geo1: dict[int, Surface] = {}
     for sf in surfaces:
-        r = _inspectable(clr1, sf, d, mode, cfg.max_end_trim) if in_band[sf.id] else \
+        r = _inspectable(clr1, sf, d, mode, cfg.end_trim_limit) if in_band[sf.id] else \
             f"normal elevation {elev[sf.id]:.1f} deg"
         if isinstance(r, str):
             why1[sf.id] = r
@@ -281,7 +281,7 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
             r: Surface | str = (f"its normal elevation is {g.elevation_deg:.1f} deg after the turn, outside "
                                 f"[-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
         else:
-            r = _inspectable(clr2, g, d, mode, cfg.max_end_trim)
+            r = _inspectable(clr2, g, d, mode, cfg.end_trim_limit)
         if isinstance(r, str):
             raise ValueError(f"surface {i} cannot be inspected before the rotor turn ({why1[i]}) nor after "
                              f"rotor_turn_deg {cfg.rotor_turn_deg!r}: {r}")
