@@ -15,9 +15,12 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         prog=prog, description="Train a stable-baselines3 agent on a wind-turbine inspection task. Steps are "
         "simulator control steps (100 Hz); outputs (model, checkpoints, evaluations, TensorBoard logs, "
         "learning curve, summary.json) go to --out.")
-    p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}")
-    p.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)} (default surface)")
-    p.add_argument("--timesteps", type=int, required=True, help="simulator steps to train in this run")
+    p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}, or bc (behaviour cloning of "
+                   "a demonstration dataset into a PPO policy; needs --dataset)")
+    p.add_argument("--dataset", default=None, help="bc: a dataset folder written by wt-inspect demos")
+    p.add_argument("--bc-epochs", type=int, default=30, help="bc: passes over the dataset (default 30)")
+    p.add_argument("--task", default=None, help=f"task: {', '.join(TASKS)} (default surface; full for bc)")
+    p.add_argument("--timesteps", type=int, default=None, help="simulator steps to train in this run (RL)")
     p.add_argument("--n-envs", type=int, default=16, help="parallel environments (drones of the vector env; default 16)")
     p.add_argument("--backend", default="vector", choices=["vector", "subprocess", "dummy"],
                    help="vector: all drones in one batched env in this process (default); subprocess: one env per "
@@ -35,6 +38,15 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     args = build_parser(prog).parse_args(argv)
+    if args.algo == "bc":
+        return _clone(args, prog)
+    if args.timesteps is None:
+        print(f"{prog}: error: --timesteps is required for --algo {args.algo}", file=sys.stderr)
+        return 2
+    if args.dataset is not None:
+        print(f"{prog}: error: --dataset is for --algo bc only", file=sys.stderr)
+        return 2
+    args.task = args.task or "surface"
     from .training import train   # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
@@ -49,6 +61,28 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
           f"{summary['wall_time_s'] / 60:.1f} min")
     print(f"final evaluation: coverage {m['coverage']:.3f}, SM {m['safety_sm']:.3f}, CM {m['centering_cm']:.3f}")
     print(json.dumps({"model": summary["final_model"], "summary": str(args.out) + "/summary.json"}))
+    return 0
+
+
+def _clone(args, prog: str) -> int:
+    """``--algo bc``: behaviour cloning of ``--dataset`` with the recipe's policy (default bc_full)."""
+    if args.dataset is None:
+        print(f"{prog}: error: --algo bc needs --dataset (a folder written by wt-inspect demos)", file=sys.stderr)
+        return 2
+    from pathlib import Path
+
+    from .imitation import BCConfig, behaviour_clone
+    from .recipe import load_recipe
+    try:
+        rec = load_recipe(args.recipe or str(Path(__file__).parent / "recipes" / "bc_full.json"))
+        summary = behaviour_clone(args.dataset, args.out, recipe=rec, task=args.task or "full",
+                                  config=BCConfig(epochs=args.bc_epochs, seed=args.seed), progress=not args.no_progress)
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    last = summary["history"][-1]
+    print(f"cloned {summary['samples']} samples of {summary['episodes']} episodes in {summary['fit_s']:.0f} s "
+          f"(train MSE {last['train_mse']:.4f}, validation MSE {last['val_mse']:.4f}) -> {summary['model']}")
     return 0
 
 

@@ -16,7 +16,8 @@ import sys
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
     "evaluate": ("wt_inspect.evaluation.cli", "run controllers on a scenario, write the table and figures"),
-    "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task"),
+    "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
+    "demos": ("wt_inspect.demonstrations", "record expert (MPC) demonstrations as a Minari dataset"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
@@ -25,7 +26,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "vecenv": ("wt_inspect_env.commands.bench_vecenv", "vector env aggregate steps per second vs the single env"),
     "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
-    "train": ("agents.bench", "training throughput with 2 subprocess environments"),
+    "train": ("agents.bench", "training throughput: vector env vs subprocess envs"),
 }
 
 

@@ -1,0 +1,111 @@
+"""Demonstrations as a Minari dataset, and behaviour cloning from it."""
+from __future__ import annotations
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import wt_inspect_env  # noqa: F401
+
+pytest.importorskip("minari")
+pytest.importorskip("stable_baselines3")
+
+from agents.imitation import (BCConfig, behaviour_clone, check_dataset_matches, dataset_arrays,  # noqa: E402
+                              invert_action, load_demonstrations)
+from agents.recipe import load_recipe  # noqa: E402
+from agents.wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction  # noqa: E402
+from wt_inspect.demonstrations import DemoConfig, main as demos_main, record_demonstrations  # noqa: E402
+
+RECIPE = "agents/recipes/bc_full.json"
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("demos")
+    cfg = DemoConfig(winds=["none", {"type": "gust", "mean_speed": 4.0}], episodes=1, time_limit_s=0.4,
+                     full_missions=0, action_noise=0.05)
+    summary = record_demonstrations(cfg, root, "tiny-v0", progress=False)
+    return root / "wt-inspect" / "tiny-v0", summary
+
+
+def test_invert_action_undoes_the_residual_hover_decoder():
+    env = gym.make("WindTurbineInspection-v0").unwrapped
+    spec = AgentSpec()
+    dec = ResidualHoverAction(spec.action, env.scaling)
+    rng = np.random.default_rng(0)
+    u = rng.uniform(-0.6, 0.6, (50, 4))
+    q = rng.normal(size=(50, 4)) * [0.1, 0.1, 1.0, 1.0]
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    a = np.stack([dec(u[i], q[i]) for i in range(50)])
+    np.testing.assert_allclose(invert_action(spec, env.scaling, a, q), u, atol=2e-6)
+    with pytest.raises(ValueError, match="action mode 'rates'"):
+        invert_action(AgentSpec(action={"mode": "attitude"}), env.scaling, a, q)
+    env.close()
+
+
+def test_dataset_is_minari_with_clean_expert_labels_and_metadata(tiny_dataset):
+    path, summary = tiny_dataset
+    ds, meta = load_demonstrations(path)
+    assert ds.total_episodes == 2 == meta["total_episodes"]
+    ep = next(ds.iterate_episodes())
+    T = len(ep.actions)
+    assert T == 40 and ep.observations["position"].shape == (T + 1, 3)
+    labels = np.asarray(ep.infos["expert_action"])[1:]
+    # executed = label + noise: close to but not the expert's action
+    diff = np.asarray(ep.actions) - labels
+    assert 0.01 < np.std(diff) < 0.1
+    assert meta["drone"]["standoff"] == 7.0 and meta["episodes"][0]["metrics"]["safety_sm"] == 1.0
+    # the features are the deployed encoder's, replayed with the executed actions
+    env = gym.make("WindTurbineInspection-v0").unwrapped
+    rec = load_recipe(RECIPE)
+    X, Y = dataset_arrays(ds, rec.spec, env.scaling, standoff=7.0, dt=env.dt)
+    assert X.shape == (2 * T, rec.spec.features.size) and Y.shape == (2 * T, 4)
+    enc = FeatureEncoder(rec.spec.features, standoff=7.0, dt=env.dt, max_rate=env.scaling.max_rate)
+    obs = {k: np.asarray(v) for k, v in ep.observations.items()}
+    enc.update({k: v[0] for k, v in obs.items()})
+    executed = invert_action(rec.spec, env.scaling, np.asarray(ep.actions), obs["quaternion"][:T])
+    for t in range(5):
+        np.testing.assert_array_equal(X[t], enc.features())
+        enc.note_action(executed[t])
+        enc.update({k: v[t + 1] for k, v in obs.items()})
+    env.close()
+
+
+def test_behaviour_cloning_fits_and_saves_a_loadable_agent(tiny_dataset, tmp_path):
+    path, _ = tiny_dataset
+    rec = load_recipe(RECIPE)
+    summary = behaviour_clone(path, tmp_path / "bc", recipe=rec, config=BCConfig(epochs=40, batch_size=32),
+                              progress=False)
+    h = summary["history"]
+    assert h[-1]["train_mse"] < 0.5 * h[0]["train_mse"]
+    from agents.policy import load_sb3_policy
+    env = gym.make("WindTurbineInspection-v0").unwrapped
+    policy = load_sb3_policy("ppo", summary["model"], env)
+    obs, _ = env.reset(seed=0)
+    policy.reset(0)
+    for _ in range(5):
+        obs, *_ = env.step(policy.act(obs))
+    assert json.loads((tmp_path / "bc" / "bc_summary.json").read_text())["samples"] == summary["samples"]
+    env.close()
+
+
+def test_dataset_for_another_standoff_is_refused(tiny_dataset):
+    _, meta = load_demonstrations(tiny_dataset[0])
+    env = gym.make("WindTurbineInspection-v0", standoff=5.0)
+    with pytest.raises(ValueError, match="standoff 7.0"):
+        check_dataset_matches(meta, env)
+    env.close()
+
+
+def test_bad_demo_input(tmp_path, tiny_dataset, capsys):
+    with pytest.raises(ValueError, match="demo episodes"):
+        DemoConfig(episodes=-1)
+    with pytest.raises(ValueError, match="exists already"):
+        record_demonstrations(DemoConfig(episodes=1, full_missions=0), tiny_dataset[0].parent.parent, "tiny-v0")
+    assert demos_main(["--out", str(tmp_path), "--config", '{"epsiodes": 1}']) == 2
+    assert "unknown demo config field" in capsys.readouterr().err
+    assert demos_main(["--out", str(tmp_path), "--config", '{"expert": "nope"}']) == 2
+    with pytest.raises(ValueError, match="not a wt-inspect Minari dataset"):
+        load_demonstrations(tmp_path)
