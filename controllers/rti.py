@@ -33,6 +33,7 @@ compare with IPOPT (:class:`IpoptOCPSolver`, also the converged baseline of the 
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,6 +45,7 @@ from wt_inspect_env.validation import check_array, check_choice, check_positive
 from .codegen import CompiledFunction, compile_function, uncompiled
 
 BOUND_INF = 1e8  # stands for an infinite bound in the QP
+QP_SOLVERS = ("casadi", "hpipm")
 
 HPIPM_STATUS: dict[int, str] = {
     0: "SUCCESS", 1: "MAX_ITER", 2: "MIN_STEP", 3: "NAN_SOL", 4: "INCONSISTENT_EQ",
@@ -213,7 +215,11 @@ class OCP:
 class RTIOptions:
     """Solver options. ``qp_mode`` is HPIPM's preset (speed_abs, speed, balance, robust);
     ``regularization`` adds a Levenberg-Marquardt term to the Gauss-Newton Hessian (it only damps
-    steps, the converged point is unchanged); ``compiled`` selects generated C for the QP data."""
+    steps, the converged point is unchanged); ``compiled`` selects generated C for the QP data.
+    ``qp_solver``: ``"casadi"`` calls HPIPM through CasADi's ``conic`` plugin; ``"hpipm"`` calls
+    it directly (:mod:`controllers.hpipm_direct`: memory allocated once, only finite bounds, x_0
+    eliminated, the QP loaded in the preparation phase) - OCPs without path constraints only;
+    where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's."""
 
     compiled: bool = True
     cache_dir: str | None = None
@@ -221,9 +227,11 @@ class RTIOptions:
     qp_iter_max: int = 50
     qp_tol: float = 1e-6
     regularization: float = 0.0
+    qp_solver: str = "casadi"
 
     def __post_init__(self) -> None:
         check_choice("qp_mode", self.qp_mode, ("speed_abs", "speed", "balance", "robust"))
+        check_choice("qp_solver", self.qp_solver, QP_SOLVERS)
         if isinstance(self.qp_iter_max, bool) or not isinstance(self.qp_iter_max, int) \
                 or self.qp_iter_max < 1:
             raise ValueError(f"qp_iter_max must be a positive integer, got {self.qp_iter_max!r}")
@@ -343,6 +351,54 @@ def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function
                        ["w", "p", "W", "WN"], ["H", "g", "A", "lba", "uba", "cost"])
 
 
+def build_stage_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function:
+    """The preparation-phase function for :mod:`controllers.hpipm_direct`:
+    ``(w, p, W, W_N) -> (Q, S, R, q, r, A, B, b, cost)`` as dense per-stage blocks, each output a
+    horizontal concatenation of the stages' (column-major) blocks: Q (nx, nx (N+1)) with the
+    terminal Hessian last, S (nu, nx N), R (nu, nu N), q (nx, N+1), r (nu, N), dynamics
+    x_{k+1} = A x_k + B u_k + b with A (nx, nx N), B (nx, nu N) and the defect b (nx, N). Same
+    Gauss-Newton data as :func:`build_qp_data_function`, laid out as HPIPM's setters take them.
+    Path constraints are not supported."""
+    if ocp.nh:
+        raise ValueError(f"the stage-wise QP data do not support path constraints (OCP {ocp.name!r} has {ocp.nh})")
+    N, nx, nu, npar, ny, nyN = ocp.horizon, ocp.nx, ocp.nu, ocp.np, ocp.ny, ocp.ny_terminal
+    nz = nx + nu
+    x, u, xn = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("x_next", nx)
+    p, W = ca.SX.sym("p", npar), ca.SX.sym("W", ny)
+    z = ca.vertcat(x, u)
+    r = ocp.stage_residual(x, u, p)
+    J = ca.jacobian(r, z)
+    WJ = ca.diag(W) @ J
+    H = J.T @ WJ
+    if regularization > 0:
+        H = H + regularization * ca.SX.eye(nz)
+    g = WJ.T @ r
+    xnext = ocp.dynamics(x, u, p)
+    AB = ca.jacobian(xnext, z)
+    stage = ca.Function(f"{ocp.name}_sstage", [x, u, xn, p, W],
+                        [H[:nx, :nx], H[nx:, :nx], H[nx:, nx:], g[:nx], g[nx:], AB[:, :nx], AB[:, nx:],
+                         xnext - xn, 0.5 * ca.dot(W * r, r)])
+    xN, WN = ca.SX.sym("xN", nx), ca.SX.sym("WN", nyN)
+    rN = ocp.terminal_residual(xN, p)
+    JN = ca.jacobian(rN, xN)
+    WJN = ca.diag(WN) @ JN
+    HN = JN.T @ WJN
+    if regularization > 0:
+        HN = HN + regularization * ca.SX.eye(nx)
+    terminal = ca.Function(f"{ocp.name}_sterminal", [xN, p, WN], [HN, WJN.T @ rN, 0.5 * ca.dot(WN * rN, rN)])
+
+    w, pm, Wm, WNm = ca.MX.sym("w", ocp.n_vars), ca.MX.sym("p", npar), ca.MX.sym("W", ny), ca.MX.sym("WN", nyN)
+    body = ca.reshape(w[:N * nz], nz, N)
+    Xs, Us = body[:nx, :], body[nx:, :]
+    wN = w[N * nz:]
+    Xnext = ca.horzcat(Xs[:, 1:], wN) if N > 1 else wN
+    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(Xs, Us, Xnext, pm, Wm)
+    QN, qN, costN = terminal(wN, pm, WNm)
+    outs = [ca.horzcat(Q, QN), S, R, ca.horzcat(q, qN), rr, A, B, b, ca.sum2(costs) + costN]
+    return ca.Function(f"{ocp.name}_sqpdata", [w, pm, Wm, WNm], [ca.densify(o) for o in outs],
+                       ["w", "p", "W", "WN"], ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"])
+
+
 def _minus_identity_pattern(ocp: OCP) -> ca.DM:
     """The constant -I blocks coupling dyn_k rows to x_{k+1} (sparse DM, na x n_vars)."""
     N, nx, nz, nh = ocp.horizon, ocp.nx, ocp.nx + ocp.nu, ocp.nh
@@ -440,11 +496,61 @@ class RTISolver:
         self._qp_in_views = [memoryview(a) for a in self._qp_in]
         self._qp_out_views = [memoryview(a) for a in self._qp_out]
 
+        self._direct = None
+        if self.options.qp_solver == "hpipm":
+            self._setup_direct(ocp)
+
         self._initialized = False
         self._prepared = False
         self._prepare_ms = 0.0
         self._since_success = 0
         self.last_stats = SolveStats()
+
+    def _setup_direct(self, ocp: OCP) -> None:
+        """The direct HPIPM path (:mod:`controllers.hpipm_direct`); warns and keeps CasADi's
+        plugin where it cannot be built."""
+        from .hpipm_direct import HpipmQP
+        if ocp.nh:
+            warnings.warn(f"qp_solver='hpipm' does not support path constraints (OCP {ocp.name!r}); "
+                          "using CasADi's HPIPM plugin", RuntimeWarning, stacklevel=3)
+            return
+        finite = np.flatnonzero(np.isfinite(ocp.x_lower) | np.isfinite(ocp.x_upper))
+        try:
+            qp = HpipmQP(ocp.horizon, ocp.nx, ocp.nu, finite, mode=self.options.qp_mode,
+                         iter_max=self.options.qp_iter_max, tol=self.options.qp_tol,
+                         cache_dir=self.options.cache_dir)
+        except RuntimeError as exc:
+            warnings.warn(f"qp_solver='hpipm' unavailable ({exc}); using CasADi's HPIPM plugin",
+                          RuntimeWarning, stacklevel=3)
+            return
+        fun = build_stage_qp_data_function(ocp, self.options.regularization)
+        data = compile_function(fun, cache_dir=self.options.cache_dir) if self.options.compiled else uncompiled(fun)
+        f = data.function
+        N, nx, nu = ocp.horizon, ocp.nx, ocp.nu
+        outs = [np.zeros(f.sparsity_out(i).nnz()) for i in range(f.n_out())]
+        buf, evaluate = f.buffer()
+        for i, arr in enumerate((self._w, self._p, self._W, self._WN)):
+            buf.set_arg(i, memoryview(arr))
+        for i, arr in enumerate(outs):
+            buf.set_res(i, memoryview(arr))
+        nb = finite.size
+        bounds = [np.zeros((N, nu)), np.zeros((N, nu)), np.zeros((N, max(nb, 1))), np.zeros((N, max(nb, 1)))]
+        self._dx0 = np.zeros(nx)
+        self._direct = {
+            "qp": qp, "data": data, "buf": buf, "eval": evaluate, "outs": outs, "cost": outs[8],
+            "bounds": bounds, "finite": finite,
+            "u_lo": np.tile(ocp.u_lower, (N, 1)), "u_hi": np.tile(ocp.u_upper, (N, 1)),
+            # a one-sided bound keeps +-BOUND_INF on its open side (only bounded states are passed)
+            "x_lo": np.tile(np.clip(ocp.x_lower[finite], -BOUND_INF, BOUND_INF), (N, 1)),
+            "x_hi": np.tile(np.clip(ocp.x_upper[finite], -BOUND_INF, BOUND_INF), (N, 1)),
+            "ptrs": [a.ctypes.data for a in outs[:8]] + [a.ctypes.data for a in bounds],
+            "dx0_ptr": self._dx0.ctypes.data, "dw_ptr": self._dw.ctypes.data,
+        }
+
+    @property
+    def qp_solver(self) -> str:
+        """The QP path in use: ``"hpipm"`` (direct) or ``"casadi"``."""
+        return "hpipm" if self._direct is not None else "casadi"
 
     # ---- state of the iteration ---------------------------------------------------------------
     @property
@@ -524,11 +630,30 @@ class RTISolver:
             raise RuntimeError("solver not initialized: call initialize(x0) first")
         self._p[:] = self.check_params(params)
         t0 = time.perf_counter()
-        self._data_eval()
-        np.subtract(self._lb_abs, self._w, out=self._lbx)
-        np.subtract(self._ub_abs, self._w, out=self._ubx)
+        if self._direct is not None:
+            self._prepare_direct()
+        else:
+            self._data_eval()
+            np.subtract(self._lb_abs, self._w, out=self._lbx)
+            np.subtract(self._ub_abs, self._w, out=self._ubx)
         self._prepare_ms = (time.perf_counter() - t0) * 1e3
         self._prepared = True
+
+    def _prepare_direct(self) -> None:
+        """Stage-wise QP data and the step bounds, loaded into HPIPM (no measurement needed)."""
+        d = self._direct
+        d["eval"]()
+        ocp = self.ocp
+        N, nx, nu = ocp.horizon, ocp.nx, ocp.nu
+        body = self._w[:N * (nx + nu)].reshape(N, nx + nu)
+        lbu, ubu, lbx, ubx = d["bounds"]
+        np.subtract(d["u_lo"], body[:, nx:], out=lbu)
+        np.subtract(d["u_hi"], body[:, nx:], out=ubu)
+        if d["finite"].size:
+            xs = np.vstack([body[1:, :nx], self._w[N * (nx + nu):][None, :]])[:, d["finite"]]
+            np.subtract(d["x_lo"], xs, out=lbx)
+            np.subtract(d["x_hi"], xs, out=ubx)
+        d["qp"].load(*d["ptrs"])
 
     def _solve_qp(self) -> dict:
         """HPIPM on the arrays bound to the QP inputs/outputs; returns its statistics.
@@ -560,20 +685,25 @@ class RTISolver:
             raise ValueError(f"x0 must be {nx} finite numbers, got {x0!r}")
         w, dw = self._w, self._dw
         t0 = time.perf_counter()
-        np.subtract(x0, w[:nx], out=self._lbx[:nx])
-        self._ubx[:nx] = self._lbx[:nx]
-        stats = self._solve_qp()
+        if self._direct is not None:
+            np.subtract(x0, w[:nx], out=self._dx0)
+            code, iterations = self._direct["qp"].feedback(self._direct["dx0_ptr"], self._direct["dw_ptr"])
+            cost = float(self._direct["cost"][0])
+        else:
+            np.subtract(x0, w[:nx], out=self._lbx[:nx])
+            self._ubx[:nx] = self._lbx[:nx]
+            stats = self._solve_qp()
+            code, iterations = int(stats.get("return_status", -1)), int(stats.get("iter_count", -1))
+            cost = float(self._cost_buf[0])
         elapsed = (time.perf_counter() - t0) * 1e3
         self._prepared = False
-        code = int(stats.get("return_status", -1))
         status = HPIPM_STATUS.get(code, f"HPIPM_{code}")
         ok = code == 0 and bool(np.all(np.isfinite(dw)))
         if code == 0 and not ok:
             status = "NONFINITE"
         st = SolveStats(prepare_ms=self._prepare_ms, feedback_ms=elapsed,
                         solve_ms=self._prepare_ms + elapsed, latency_ms=self._prepare_ms + elapsed,
-                        qp_iterations=int(stats.get("iter_count", -1)), status=status,
-                        cost=float(self._cost_buf[0]))
+                        qp_iterations=iterations, status=status, cost=cost)
         if ok:
             w += dw
             st.step_norm = float(np.max(np.abs(dw)))

@@ -381,9 +381,8 @@ class RTIPolicy(Policy):
         predicted = self.predicted_state
         if predicted is None:
             predicted = state
-        nxt = dict(obs)
-        nxt["point"] = obs["point"] + obs["point_velocity"] * self.config.control_dt
-        nxt["position"], nxt["velocity_body"], nxt["quaternion"] = predicted[0:3], predicted[3:6], predicted[6:10]
+        nxt = {**obs, "point": obs["point"] + obs["point_velocity"] * self.config.control_dt,
+               "position": predicted[0:3], "velocity_body": predicted[3:6], "quaternion": predicted[6:10]}
         nxy = self.normal.update(nxt["normal"], predicted[0:3], nxt["point"])
         self.solver.prepare(self.parameters(nxt, predicted, nxy))
         self._ahead = True

@@ -11,7 +11,7 @@ import pytest
 from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start, run_closed_loop
 from controllers.nmpc import NMPCPolicy
 from controllers.pampc import PAMPCPolicy
-from controllers.rti import OCP, RTIOptions, RTISolver
+from controllers.rti import OCP, RTIOptions
 from controllers.rti_policy import LSQWeights, MPCConfig, RTIPolicy
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy
 from wt_inspect_env.dynamics import NU, NX, QuadrotorModel
@@ -109,19 +109,32 @@ def test_set_weights_rebuilds_ipopt():
 
 @pytest.mark.parametrize("options", [{}, VTNMPC_PLUS])
 def test_prepare_ahead_runs_only_the_feedback_after_the_command(options):
-    """With prepare_ahead the next step's QP is prepared (at the predicted state) before act
-    returns; the next act solves it for the measurement, and the closed loop is as good."""
+    """With prepare_ahead each act runs the feedback QP first and prepares the next step after
+    the command exists (at the predicted state); the closed loop is as good as without."""
     params = get_preset("matrice100")
     sc = SurfacePass()
     x0 = offset_start(sc, 7.0)
-    runs = {}
+    runs, orders = {}, {}
     for ahead in (False, True):
         policy = VTNMPCPolicy(params=params, prepare_ahead=ahead, solver=UNCOMPILED, **options)
+        calls: list[str] = []
+        for name in ("prepare", "feedback"):
+            original = getattr(policy.solver, name)
+            setattr(policy.solver, name, lambda *a, _f=original, _n=name: (calls.append(_n), _f(*a))[1])
+        act = policy.act
+        order: list[list[str]] = []
+
+        def logged(obs, act=act, calls=calls, order=order):
+            calls.clear()
+            out = act(obs)
+            order.append(list(calls))
+            return out
+        policy.act = logged
         runs[ahead] = run_closed_loop(policy, ModelPlant(params), sc, 800, x0, policy.scaling)
-        if ahead:
-            assert isinstance(policy.solver, RTISolver) and policy.solver._prepared   # ready for the next obs
-            st = policy.last_stats
-            assert st.latency_ms < st.solve_ms + 0.05   # the preparation is not between obs and command
+        orders[ahead] = order
+    assert orders[False][5] == ["prepare", "feedback"]
+    assert orders[True][0] == ["prepare", "feedback", "prepare"]        # first step: nothing prepared yet
+    assert all(o == ["feedback", "prepare"] for o in orders[True][1:])  # then the QP is ready on arrival
     for r in runs.values():   # (VT-NMPC+ settles 0.15 m off on this drag-only pass, either way)
         assert r.fallbacks == 0 and abs(r.distance[-1] - 7.0) < 0.2 and r.heading[-1] > 0.99
     # one step of parameter lag (an observer update one step later), nothing more

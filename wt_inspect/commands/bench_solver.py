@@ -16,7 +16,10 @@ after ``--warmup``:
   loaded or a faster machine can be compared by their ratio.
 
 Solvers (all N = 30, as registered): ``rti_compiled`` (VT-NMPC, QP data from generated and
-compiled C, HPIPM), ``rti_uncompiled`` (the same, QP data by CasADi's virtual machine), ``ipopt``
+compiled C, HPIPM), ``rti_ahead`` (the same with ``prepare_ahead``: the next step's QP is prepared
+at the predicted state after the command is returned, so the latency is the feedback QP alone),
+``rti_hpipm`` / ``rti_hpipm_ahead`` (the same two with HPIPM called directly,
+:mod:`controllers.hpipm_direct`, instead of through CasADi's plugin), ``rti_uncompiled`` (the same, QP data by CasADi's virtual machine), ``ipopt``
 (the VT-NMPC OCP solved to convergence every step, warm-started), ``vtnmpc_plus`` (VT-NMPC+, the
 observer inside the timed step), ``nmpc`` and ``pampc`` (the paper's baselines, compiled RTI with
 their own stage lengths), so the paper's ordering of cost per step (NMPC < VT-NMPC < PAMPC) is
@@ -54,6 +57,11 @@ def _vtnmpc_variant(**options: Any) -> Callable[[Any], Any]:
     return build
 
 
+def _direct_hpipm() -> Any:
+    from controllers.rti import RTIOptions
+    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm")
+
+
 def _uncompiled(env: Any) -> Any:
     from controllers.rti import RTIOptions
     return _vtnmpc_variant(solver=RTIOptions(qp_mode="speed_abs", compiled=False))(env)
@@ -61,6 +69,12 @@ def _uncompiled(env: Any) -> Any:
 
 SOLVERS: dict[str, tuple[str, Callable[[], Callable[[Any], Any]]]] = {
     "rti_compiled": ("VT-NMPC, compiled RTI", lambda: registry.resolve("vtnmpc")),
+    "rti_ahead": ("VT-NMPC, compiled RTI, next step prepared after the command",
+                  lambda: _vtnmpc_variant(prepare_ahead=True)),
+    "rti_hpipm": ("VT-NMPC, compiled RTI, HPIPM called directly",
+                  lambda: _vtnmpc_variant(solver=_direct_hpipm())),
+    "rti_hpipm_ahead": ("VT-NMPC, HPIPM called directly, next step prepared after the command",
+                        lambda: _vtnmpc_variant(solver=_direct_hpipm(), prepare_ahead=True)),
     "rti_uncompiled": ("VT-NMPC, uncompiled QP data", lambda: _uncompiled),
     "ipopt": ("VT-NMPC OCP, IPOPT to convergence", lambda: _vtnmpc_variant(backend="ipopt")),
     "vtnmpc_plus": ("VT-NMPC+, compiled RTI", lambda: registry.resolve("vtnmpc-plus")),
@@ -153,7 +167,7 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
-    parser.add_argument("--solvers", default="rti_compiled,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
+    parser.add_argument("--solvers", default="rti_compiled,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
                         help="comma-separated subset of " + ", ".join(SOLVERS))
     args = parser.parse_args(argv)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
