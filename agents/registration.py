@@ -14,16 +14,34 @@ from typing import Any
 from wt_inspect_env.policy import PolicyEntry
 
 
+MODELS_DIR = Path(__file__).parent / "models"
+
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in ``agents/models`` (``ppo:NAME`` loads one)."""
+    return sorted(p.stem for p in MODELS_DIR.glob("*.zip"))
+
+
+def resolve_model_path(arg: str) -> Path:
+    """``arg`` as a model file: a path to an existing file, or the name of a shipped model
+    (``ppo_surface`` -> ``agents/models/ppo_surface.zip``)."""
+    p = Path(arg)
+    if p.is_file():
+        return p
+    if p.suffix != ".zip" and len(p.parts) == 1 and (MODELS_DIR / f"{arg}.zip").is_file():
+        return MODELS_DIR / f"{arg}.zip"
+    raise ValueError(f"model {arg!r} is neither a file nor a shipped model; shipped: {', '.join(shipped_models())}")
+
+
 def check_model_file(path: str) -> None:
-    """ValueError naming the path unless the model file exists (cheap: nothing is loaded)."""
-    if not Path(path).is_file():
-        raise ValueError(f"model file {path!r} does not exist")
+    """ValueError naming the path unless the model file (or shipped name) exists (nothing is loaded)."""
+    resolve_model_path(path)
 
 
 def model_fingerprint(path: str) -> str:
     """Content hash of a saved model and its sidecar (the sidecar holds the observation
     normalisation, so a retrained or re-normalised agent is a different controller)."""
-    model = Path(path)
+    model = resolve_model_path(path)
     h = hashlib.sha256(model.read_bytes())
     sidecar = model.with_suffix(".json")
     if sidecar.is_file():
@@ -42,11 +60,11 @@ def _loader(algo: str):
                                  "install it with: pip install 'wt-inspect[rl]'") from None
             raise ValueError(f"controller '{algo}:{path}' needs agents.policy.load_sb3_policy, which cannot "
                              f"be imported: {exc}") from None
-        return load_sb3_policy(algo, path, env)
+        return load_sb3_policy(algo, resolve_model_path(path), env)
     return load
 
 
-ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip)", display_name="PPO",
+ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)", display_name="PPO",
                   takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)
-sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip)", display_name="SAC",
+sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip or sac:NAME)", display_name="SAC",
                   takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)

@@ -30,6 +30,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
     p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seeds", default=None, help="train one run per seed (comma-separated) into OUT/seed_<s>/; "
+                   "finished seeds are skipped, unfinished ones resume from their latest checkpoint")
+    p.add_argument("--ray", action="store_true", help="with --seeds: run the seeds as Ray tasks (one CPU each)")
+    p.add_argument("--address", default=None, help="with --ray: address of a Ray cluster (default: a local instance)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this wall time")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--verbose", type=int, default=0, help="stable-baselines3 verbosity (0, 1, 2)")
@@ -47,6 +51,11 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
         print(f"{prog}: error: --dataset is for --algo bc only", file=sys.stderr)
         return 2
     args.task = args.task or "surface"
+    if args.seeds is not None:
+        return _seeds(args, prog)
+    if args.ray or args.address:
+        print(f"{prog}: error: --ray/--address need --seeds", file=sys.stderr)
+        return 2
     from .training import train   # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
@@ -61,6 +70,28 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
           f"{summary['wall_time_s'] / 60:.1f} min")
     print(f"final evaluation: coverage {m['coverage']:.3f}, SM {m['safety_sm']:.3f}, CM {m['centering_cm']:.3f}")
     print(json.dumps({"model": summary["final_model"], "summary": str(args.out) + "/summary.json"}))
+    return 0
+
+
+def _seeds(args, prog: str) -> int:
+    """``--seeds``: one run per seed (see :mod:`agents.seeds`)."""
+    from .seeds import parse_seeds, train_seeds
+    try:
+        seeds = parse_seeds(args.seeds)
+        doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,
+                          timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe,
+                          max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
+                          progress_bar=not args.no_progress)
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    for r in doc["seeds"]:
+        f = r["final"] or {}
+        when = f"at {r['reached_at_env_steps']} steps ({r['reached_at_wall_s']:.0f} s)" if r["reached_target"] else "not reached"
+        print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, SM {f.get('safety_sm', float('nan')):.3f}, "
+              f"CM {f.get('centering_cm', float('nan')):.3f}; target {when}")
+    print(f"{doc['n_reached']} of {len(doc['seeds'])} seeds reached the target; {args.out}/seeds.json, "
+          f"{args.out}/learning_curves_seeds.png")
     return 0
 
 

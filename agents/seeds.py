@@ -1,0 +1,146 @@
+"""Several seeds of one recipe: trained side by side (locally or on Ray), resumed, and compared.
+
+``wt-inspect train ... --seeds 0,1,2,3,4 [--ray [--address ADDR]]`` trains one run per seed into
+``OUT/seed_<s>/`` (each a normal run directory). A seed whose ``summary.json`` exists is done and
+skipped, one with checkpoints resumes from its latest - the resume behaviour of single runs - so an
+interrupted sweep is continued by the same command. Locally the seeds run one after another (each
+with its own progress bar); on Ray (``--ray``; a local Ray instance, or a cluster by
+``--address``, as the evaluation backend) each seed is a task of one CPU and a bar counts the
+finished seeds. ``OUT/seeds.json`` lists, per seed, whether and when (env steps, wall time) it
+reached the target, and ``OUT/learning_curves_seeds.png`` draws every seed's evaluation curve
+with the mean and spread over seeds.
+"""
+from __future__ import annotations
+
+import json
+import re
+import sys
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from wt_inspect_env.atomic_io import write_text_atomic
+
+TARGET = {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995}
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0,1,2"`` -> [0, 1, 2] (ValueError naming --seeds otherwise)."""
+    try:
+        seeds = [int(s) for s in str(text).split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"--seeds must be comma-separated non-negative integers, got {text!r}") from None
+    if not seeds or any(s < 0 for s in seeds) or len(set(seeds)) != len(seeds):
+        raise ValueError(f"--seeds must be distinct comma-separated non-negative integers, got {text!r}")
+    return seeds
+
+
+def _latest_checkpoint(run: Path) -> Path | None:
+    ckpts = sorted(run.glob("checkpoints/ckpt_*.zip"), key=lambda p: int(re.findall(r"\d+", p.stem)[-1]))
+    return ckpts[-1] if ckpts else None
+
+
+def _one_seed(kwargs: Mapping[str, Any], seed: int, run: str, progress: bool) -> dict[str, Any]:
+    from .training import train
+    run_dir = Path(run)
+    ckpt = _latest_checkpoint(run_dir)
+    kw = dict(kwargs)
+    if ckpt is not None:
+        done = int(json.loads(ckpt.with_suffix(".json").read_text())["training"]["env_steps"])
+        kw["timesteps"] = max(1, int(kw["timesteps"]) - done)
+        kw["resume"] = str(ckpt)
+        kw["recipe"] = None
+    return train(out=run_dir, seed=seed, progress_bar=progress, **kw)
+
+
+def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, address: str | None = None,
+                **train_kwargs: Any) -> dict[str, Any]:
+    """Train every seed (see the module docstring); returns the ``seeds.json`` document."""
+    from tqdm import tqdm
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    todo = [s for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
+    progress = bool(train_kwargs.pop("progress_bar", True))
+    if todo and ray:
+        import ray as ray_
+
+        ray_.init(address=address, ignore_reinit_error=True, include_dashboard=False, log_to_driver=False)
+        task = ray_.remote(num_cpus=1)(_one_seed)
+        refs = {task.remote(train_kwargs, s, str(out / f"seed_{s}"), False): s for s in todo}
+        with tqdm(total=len(seeds), initial=len(seeds) - len(todo), desc="seeds", unit="seed", file=sys.stderr) as bar:
+            pending = list(refs)
+            while pending:
+                ready, pending = ray_.wait(pending, num_returns=1)
+                ray_.get(ready[0])
+                bar.update(1)
+    else:
+        for s in todo:
+            _one_seed(train_kwargs, s, str(out / f"seed_{s}"), progress)
+    doc = seed_report(out, seeds)
+    write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
+    try:
+        plot_seed_curves(out, seeds, out / "learning_curves_seeds.png")
+    except Exception as exc:  # a figure must never lose finished runs
+        print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
+    return doc
+
+
+def _evaluations(run: Path) -> list[dict[str, Any]]:
+    p = run / "evaluations.json"
+    return json.loads(p.read_text()) if p.is_file() else []
+
+
+def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> bool:
+    m = entry["mean"]
+    return all(m[k] >= v for k, v in target.items())
+
+
+def seed_report(out: Path, seeds: Sequence[int], target: Mapping[str, float] = TARGET) -> dict[str, Any]:
+    """Per seed: final evaluation, and the first evaluation that met ``target`` (if any)."""
+    rows = []
+    for s in seeds:
+        evals = _evaluations(out / f"seed_{s}")
+        hit = next((e for e in evals if reached(e, target)), None)
+        rows.append({"seed": s, "evaluations": len(evals),
+                     "final": evals[-1]["mean"] if evals else None,
+                     "reached_target": hit is not None,
+                     "reached_at_env_steps": None if hit is None else hit["env_steps"],
+                     "reached_at_wall_s": None if hit is None else hit["wall_time_s"]})
+    return {"target": dict(target), "seeds": rows, "n_reached": sum(r["reached_target"] for r in rows)}
+
+
+def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path) -> Path:
+    """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    curves = []
+    for s in seeds:
+        evals = _evaluations(out / f"seed_{s}")
+        if not evals:
+            continue
+        x = np.array([e["env_steps"] for e in evals], float)
+        score = np.array([min(e["mean"]["coverage"], e["mean"]["safety_sm"]) for e in evals])
+        cm = np.array([e["mean"]["centering_cm"] for e in evals])
+        curves.append((x, score, cm))
+        axes[0].plot(x, score, alpha=0.35, lw=1, label=f"seed {s}")
+        axes[1].plot(x, cm, alpha=0.35, lw=1)
+    if curves:
+        grid = np.linspace(0, max(c[0].max() for c in curves), 50)
+        for ax, k in ((axes[0], 1), (axes[1], 2)):
+            ys = np.array([np.interp(grid, c[0], c[k]) for c in curves])
+            m, sd = ys.mean(0), ys.std(0)
+            ax.plot(grid, m, color="k", lw=2, label="mean over seeds")
+            ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
+    axes[0].axhline(TARGET["coverage"], ls="--", color="g", lw=1, label="target 0.99")
+    axes[1].axhline(TARGET["centering_cm"], ls="--", color="g", lw=1)
+    axes[0].set(xlabel="env steps", ylabel="min(coverage, SM)", title="evaluation score")
+    axes[1].set(xlabel="env steps", ylabel="CM", title="centering")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path

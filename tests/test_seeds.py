@@ -1,0 +1,70 @@
+"""Several seeds of one recipe (local and Ray), resumption, the seed report; models by name."""
+from __future__ import annotations
+
+import json
+
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from agents.recipe import Recipe, default_recipe_path  # noqa: E402
+from agents.registration import resolve_model_path, shipped_models  # noqa: E402
+from agents.seeds import parse_seeds, reached, seed_report, train_seeds  # noqa: E402
+
+
+def _tiny_recipe_file(tmp_path):
+    data = json.loads(default_recipe_path("ppo").read_text())
+    data["env"] = {**data["env"], "time_limit_s": 2.0}
+    data["eval_env"] = {"start_noise": 0.0, "time_limit_s": 1.0}
+    data["algo_kwargs"] = {**data["algo_kwargs"], "n_steps": 32, "batch_size": 32, "n_epochs": 1}
+    data["policy_kwargs"] = {**data["policy_kwargs"], "net_arch": {"pi": [8], "vf": [8]}}
+    data.update(eval_every_env_steps=300, checkpoint_every_env_steps=300)
+    Recipe.from_dict(data)
+    path = tmp_path / "tiny.json"
+    path.write_text(json.dumps(data))
+    return str(path)
+
+
+def test_parse_seeds():
+    assert parse_seeds("0, 1,4") == [0, 1, 4]
+    for bad in ("", "a", "1,1", "-1", "1.5"):
+        with pytest.raises(ValueError, match="--seeds"):
+            parse_seeds(bad)
+
+
+@pytest.mark.slow
+def test_local_seeds_train_report_and_skip_finished_runs(tmp_path):
+    kw = dict(algo="ppo", task="surface", timesteps=600, n_envs=2, recipe=_tiny_recipe_file(tmp_path),
+              progress_bar=False)
+    doc = train_seeds([0, 1], tmp_path / "out", **kw)
+    assert [r["seed"] for r in doc["seeds"]] == [0, 1]
+    assert all(r["evaluations"] >= 2 for r in doc["seeds"])
+    assert (tmp_path / "out" / "learning_curves_seeds.png").stat().st_size > 1000
+    stamp = (tmp_path / "out" / "seed_0" / "summary.json").stat().st_mtime_ns
+    doc2 = train_seeds([0, 1], tmp_path / "out", **kw)        # both finished: nothing retrained
+    assert (tmp_path / "out" / "seed_0" / "summary.json").stat().st_mtime_ns == stamp
+    assert doc2["seeds"] == doc["seeds"]
+    # the report finds when a seed met a target it can meet
+    low = seed_report(tmp_path / "out", [0, 1], target={"coverage": 0.0, "safety_sm": 0.0, "centering_cm": -1.0})
+    assert low["n_reached"] == 2 and low["seeds"][0]["reached_at_env_steps"] > 0
+    assert not reached({"mean": {"coverage": 0.98, "safety_sm": 1.0, "centering_cm": 1.0}})
+
+
+@pytest.mark.slow
+def test_ray_seeds(tmp_path):
+    pytest.importorskip("ray")
+    kw = dict(algo="ppo", task="surface", timesteps=300, n_envs=1, recipe=_tiny_recipe_file(tmp_path),
+              progress_bar=False)
+    doc = train_seeds([3, 4], tmp_path / "out", ray=True, **kw)
+    assert all((tmp_path / "out" / f"seed_{s}" / "model.zip").is_file() for s in (3, 4))
+    assert len(doc["seeds"]) == 2
+
+
+def test_shipped_models_resolve_by_name(tmp_path):
+    assert "ppo_surface" in shipped_models()
+    assert resolve_model_path("ppo_surface").name == "ppo_surface.zip"
+    f = tmp_path / "m.zip"
+    f.write_bytes(b"x")
+    assert resolve_model_path(str(f)) == f
+    with pytest.raises(ValueError, match="neither a file nor a shipped model; shipped: ppo_blade"):
+        resolve_model_path("ppo_nothing")
