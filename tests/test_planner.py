@@ -9,8 +9,8 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from wt_inspect_env.planner import (HeldKarp, PlannerConfig, cluster_surfaces, plan_inspection, solve_tour,
-                                    tour_cost)
+from wt_inspect_env.planner import (HeldKarp, PlannerConfig, cluster_surfaces, describe_surface, plan_inspection,
+                                    solve_tour, tour_cost)
 from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
 from wt_inspect_env.planner.path import offset_direction
 from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
@@ -467,7 +467,7 @@ def test_end_trim_keeps_the_clear_part_and_no_more():
         outside = q_end - 0.1 * axis                          # 10 cm further towards the root
         d_end, d_out = brute_distance(np.stack([q_end, outside]), turb.all_triangles)
         assert d_end >= need and d_out < need + 0.1
-    with pytest.raises(ValueError, match="surface 1 cannot .*more than max_end_trim 0.0"):
+    with pytest.raises(ValueError, match=r"surface 1 cannot .*trimming its ends is off \(max_end_trim 0.0"):
         plan_inspection(t, standoff=6.0, spacing=0.2, max_end_trim=0.0)
 
 
@@ -484,3 +484,194 @@ def test_ci_hypothesis_profile_is_derandomised(monkeypatch):
     monkeypatch.setenv("HYPOTHESIS_PROFILE", "ci")
     monkeypatch.setenv("CI", "")
     assert conftest._profile() == "ci"
+
+
+# --------------------------------------------------------------------------- rotor positions
+def _in_band_and_clear(turb, tri_idx, standoff, cfg, root, tip):
+    """Independent test of inspectability at one rotor position: the area-weighted normal of the
+    triangles in the band, and every point of the stand-off line between ``root`` and ``tip``
+    (sampled every 5 cm, exact distances to every triangle) clear by clearance + check_step/2."""
+    n = turb.blade_areas[tri_idx] @ turb.blade_normals[tri_idx]
+    n /= np.linalg.norm(n)
+    el = math.degrees(math.asin(n[2]))
+    if not -cfg.max_down_deg <= el <= cfg.max_up_deg:
+        return False, el
+    q = np.stack([root, tip]) + standoff * offset_direction(n, "horizontal")
+    k = max(2, math.ceil(np.linalg.norm(q[1] - q[0]) / 0.05) + 1)
+    pts = q[0] + np.linspace(0, 1, k)[:, None] * (q[1] - q[0])
+    return bool(DistanceField(turb.all_triangles).distance(pts, 3.0).min() >= cfg.clearance + cfg.check_step / 2), el
+
+
+@pytest.mark.parametrize("azimuth,facing", [(0.0, 90.0), (30.0, 90.0), (60.0, 90.0), (90.0, 90.0), (120.0, 90.0),
+                                            (20.0, -30.0), (45.0, 200.0), (100.0, -30.0), (120.0, -30.0)])
+def test_chosen_rotor_positions_inspect_every_surface(azimuth, facing):
+    """Any azimuth (0-120 deg covers every pose of the 3-fold rotor) and facing: the planner chooses
+    the turns, every surface is inspected once at a rotor position where it is inspectable (checked
+    independently), none waits for a turn that it did not need, and the plan says which surface is
+    inspected at which position."""
+    t = build_turbine(TurbineSpec(rotor_azimuth_deg=azimuth, facing_deg=facing, mesh_step=2.5))
+    p = plan_inspection(t, rotor_turn_deg=None)
+    cfg = p.config
+    assert sorted(x.surface for x in p.tour) == list(range(12))
+    assert 2 <= p.n_phases <= 3 and len(p.turbines) == p.n_phases == len(p.hold_points) + 1
+    assert [r.phase for r in p.rotor_positions] == list(range(1, p.n_phases + 1))
+    assert p.rotor_positions[0].turn_deg == 0.0
+    assert sorted(s for r in p.rotor_positions for s in r.surfaces) == list(range(12))
+    assert set(np.unique(p.phase)) == set(range(1, p.n_phases + 1)) and np.all(np.diff(p.phase) >= 0)
+    for r in p.rotor_positions:
+        assert -180.0 < r.turn_deg <= 180.0
+        assert p.turbine(r.phase).rotor_turn_deg == pytest.approx(r.turn_deg)
+        assert [x.surface for x in p.tour if x.phase == r.phase] == list(r.surfaces)
+        np.testing.assert_array_equal(np.flatnonzero(p.surface_phase == r.phase), sorted(r.surfaces))
+    full, _ = cluster_surfaces(t)
+    for sid in range(12):
+        ph = int(p.surface_phase[sid])
+        g = p.surface_geometry(sid)
+        ok, el = _in_band_and_clear(p.turbine(ph), g.triangles, p.standoff, cfg, g.root, g.tip)
+        assert ok, (sid, ph, el)
+        for earlier in range(1, ph):           # it waited: it was not inspectable before
+            turb = p.turbine(earlier)
+            ge = describe_surface(turb, full[sid].triangles, sid, full[sid].blade)
+            assert not _in_band_and_clear(turb, ge.triangles, p.standoff, cfg, ge.root, ge.tip)[0], (sid, earlier)
+    assert p.min_clearance() >= cfg.clearance
+    summary = p.summary()["rotor_positions"]
+    assert [r["surfaces"] for r in summary] == [list(r.surfaces) for r in p.rotor_positions]
+    # the 3-fold rotor: azimuth 120 is azimuth 0 with the blades renumbered
+    if azimuth == 120.0:
+        p0 = plan_inspection(build_turbine(TurbineSpec(facing_deg=facing, mesh_step=2.5)), rotor_turn_deg=None)
+        assert p.tour_length == pytest.approx(p0.tour_length, rel=1e-9)
+        assert p.rotor_turns_deg == p0.rotor_turns_deg
+
+
+@pytest.mark.parametrize("azimuth,facing", [(20.0, 45.0)])
+def test_one_chosen_turn_is_the_best_fixed_turn(azimuth, facing):
+    """Brute force over the candidate grid: every fixed turn planned on its own; the chosen plan is
+    the shortest feasible one (the issue's turbine at azimuth 20, facing 45, fails with 120)."""
+    t = build_turbine(TurbineSpec(rotor_azimuth_deg=azimuth, facing_deg=facing, mesh_step=2.5))
+    auto = plan_inspection(t, rotor_turn_deg=None)
+    lengths = {}
+    for k in range(1, 36):
+        turn = (10.0 * k + 180.0) % 360.0 - 180.0 or 180.0
+        try:
+            lengths[turn] = plan_inspection(t, rotor_turn_deg=turn).tour_length
+        except ValueError as err:
+            assert "cannot be inspected" in str(err)
+    assert lengths, "no single turn works"
+    best = min(lengths.values())
+    assert auto.n_phases == 2 and auto.tour_length == pytest.approx(best, rel=1e-12)
+    assert lengths[auto.rotor_turns_deg[0]] == pytest.approx(best, rel=1e-12)
+    if azimuth == 20.0:
+        assert 120.0 not in lengths
+        with pytest.raises(ValueError, match="rotor_turn_deg=None lets the planner choose"):
+            plan_inspection(t, rotor_turn_deg=120.0)
+
+
+def test_the_upright_y_needs_two_turns():
+    """Azimuth 60 deg: no single turn of the grid makes every surface inspectable (each fixed turn
+    refused), the chosen plan turns twice, and each turn inspects surfaces."""
+    t = build_turbine(TurbineSpec(rotor_azimuth_deg=60.0, mesh_step=2.5))
+    for k in range(1, 36):
+        with pytest.raises(ValueError, match="cannot be inspected"):
+            plan_inspection(t, rotor_turn_deg=(10.0 * k + 180.0) % 360.0 - 180.0 or 180.0)
+    p = plan_inspection(t, rotor_turn_deg=None)
+    assert p.n_phases == 3 and all(len(r.surfaces) > 0 for r in p.rotor_positions)
+    assert len(p.rotor_turns_deg) == 2
+
+
+def test_no_turn_when_everything_is_inspectable():
+    """A single blade pointing up (the others removed) needs no turn: one phase, no hold point."""
+    from wt_inspect_env.mission import single_blade_turbine
+    t = build_turbine(TurbineSpec(mesh_step=2.5))
+    sub, _ = single_blade_turbine(t, 0)
+    p = plan_inspection(sub, rotor_turn_deg=None)
+    assert p.n_phases == 1 and p.hold_point is None and p.turbine_phase2 is None and p.rotor_turns_deg == ()
+    assert set(np.unique(p.phase)) == {1} and p.summary()["rotor_turn_deg"] is None
+
+
+def brute_force_chain(ends_per_phase, forb_per_phase, start, hold_of):
+    """Every order and entry in every phase, the retreat from each phase's exit to its hold point."""
+    def tours(ends, forb):
+        n = len(ends)
+        for perm in itertools.permutations(range(n)):
+            if any(forb[perm[i], perm[i + 1]] for i in range(n - 1)):
+                continue
+            for entries in itertools.product((0, 1), repeat=n):
+                yield tuple(zip(perm, entries))
+
+    best = np.inf
+
+    def rec(k, pos, acc):
+        nonlocal best
+        if k == len(ends_per_phase):
+            best = min(best, acc)
+            return
+        for stops in tours(ends_per_phase[k], forb_per_phase[k]):
+            c = tour_cost(ends_per_phase[k], pos, stops)
+            last, e = stops[-1]
+            q = ends_per_phase[k][last, 1 - e]
+            if k + 1 < len(ends_per_phase):
+                h = hold_of(q)
+                rec(k + 1, h, acc + c + np.linalg.norm(h - q))
+            else:
+                rec(k + 1, q, acc + c)
+
+    rec(0, start, 0.0)
+    return best
+
+
+@settings(max_examples=15, deadline=None)
+@given(sizes=st.lists(st.integers(1, 3), min_size=1, max_size=3), seed=st.integers(0, 2 ** 32 - 1))
+def test_multi_phase_ordering_equals_brute_force(sizes, seed):
+    """The DP over phases (each phase's table from every exit of the one before) against full
+    enumeration of all orders in all phases, with a hold point that depends on the exit."""
+    from wt_inspect_env.planner.plan import _chain
+    rng = np.random.default_rng(seed)
+    E = [rng.normal(size=(n, 2, 3)) * 10 for n in sizes]
+    F = [np.triu(rng.random((n, n)) < 0.3, 1) for n in sizes]
+    F = [f | f.T for f in F]
+    start = rng.normal(size=3) * 10
+
+    class Rotor:                                   # hold point: push out along x to |x| >= 12
+        def hold_point(self, q, clearance, standoff):
+            return np.array([max(q[0], 12.0), q[1], q[2]])
+
+    cfg = PlannerConfig()
+    chain = _chain(E, F, HeldKarp(E[0], start, F[0]), Rotor(), cfg)
+    best = brute_force_chain(E, F, start, lambda q: Rotor().hold_point(q, 0, 0))
+    if not np.isfinite(best):
+        assert chain is None
+        return
+    assert chain.cost == pytest.approx(best, rel=1e-12, abs=1e-9)
+    # the tours it returns realise that cost
+    total, pos = 0.0, start
+    for k, sol in enumerate(chain.tours):
+        total += tour_cost(E[k], pos, sol.stops)
+        last, e = sol.stops[-1]
+        pos = E[k][last, 1 - e]
+        if k + 1 < len(E):
+            np.testing.assert_allclose(chain.holds[k], Rotor().hold_point(pos, 0, 0))
+            total += np.linalg.norm(chain.holds[k] - pos)
+            pos = chain.holds[k]
+    assert total == pytest.approx(best, rel=1e-12, abs=1e-9)
+
+
+def test_env_flies_a_turbine_at_any_azimuth():
+    """gym.make with rotor_turn_deg=None: the upright Y (azimuth 60) gets three rotor positions;
+    mission.turbines holds one turbine per phase and mission.phase runs 1..3 (what the env and the
+    vector env read), the default (the paper's 120 deg turn) still refuses it and says what to give."""
+    import gymnasium as gym
+    import wt_inspect_env  # noqa: F401 - registers the ids
+    env = gym.make("WindTurbineInspection-v0", turbine={"rotor_azimuth_deg": 60.0, "mesh_step": 2.5},
+                   rotor_turn_deg=None, wind="none")
+    try:
+        env.reset(seed=0)
+        m = env.unwrapped.mission
+        assert len(m.turbines) == 3 and set(np.unique(m.phase)) == {1, 2, 3}
+        for k, turb in enumerate(m.turbines):
+            assert turb.rotor_turn_deg == pytest.approx(m.plan.rotor_positions[k].turn_deg)
+        for _ in range(3):
+            env.step(np.zeros(4, dtype=np.float32))
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="rotor_turn_deg=None"):
+        gym.make("WindTurbineInspection-v0", turbine={"rotor_azimuth_deg": 60.0, "mesh_step": 2.5}, wind="none")

@@ -64,8 +64,12 @@ class EnvConfig:
     task: ``full`` (the paper's two-phase mission over all blades), ``blade`` (the four surfaces of
         one blade, phase 1), ``surface`` (one surface); ``blade_index`` / ``surface_index`` pick
         which, counted in tour order among the phase-1 ones (0 = the first the tour visits).
-    turbine: a :class:`TurbineSpec` or dict of its fields; ``turbine_mesh``: a mesh file to load
-        instead (blade faces found by the loader).
+    turbine: a :class:`TurbineSpec` or dict of its fields (``{"preset": "nrel-5mw"}`` for a named
+        turbine); ``turbine_mesh``: a mesh file to load instead, or a dict of
+        :class:`~wt_inspect_env.turbine.MeshLoadOptions` (``path``, ``unit``, ``up_axis``, ...).
+    rotor_turn_deg: the rotor turn between phase 1 and 2 (the paper's 120 deg); ``None``: the
+        planner chooses the rotor positions (none, one or two turns) with the least flight, which
+        any rotor azimuth needs (``mission.turbines`` then holds one turbine per position).
     wind: a wind spec for :func:`~wt_inspect_env.wind.make_wind` (default: the paper's gust, 4 m/s
         along y, period 10 s, std 0.5 m/s); ``"none"`` for still air.
     drone: preset name or :class:`QuadrotorParams`.
@@ -111,7 +115,7 @@ class EnvConfig:
     safety_margin: float = 1.0
     planner_spacing: float = 0.1
     planner: Any = None
-    rotor_turn_deg: float = 120.0
+    rotor_turn_deg: float | None = 120.0
     blade_index: int = 0
     surface_index: int = 0
     ctrl_hz: float = 100.0
@@ -152,7 +156,8 @@ class EnvConfig:
                              f"got {self.reference_stop!r}")
         check_positive("safety_margin", self.safety_margin)
         check_positive("planner_spacing", self.planner_spacing)
-        check_finite("rotor_turn_deg", self.rotor_turn_deg)
+        if self.rotor_turn_deg is not None:
+            check_finite("rotor_turn_deg", self.rotor_turn_deg)
         for name in ("blade_index", "surface_index"):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:

@@ -2,7 +2,8 @@
 
 * ``full``: the paper's mission. The planner's whole path from the first inspected surface on (the
   take-off climb from the ground is skipped: the drone starts hovering at the first stand-off
-  pose), both phases, every blade triangle the planner assigned to a surface.
+  pose), every phase (one per rotor position: two for the paper's turn, one to three when the
+  planner chooses, ``rotor_turn_deg=None``), every blade triangle the planner assigned to a surface.
 * ``blade``: the four long faces of one blade (``blade_index`` 0 = the highest blade, the upright
   one of the inverted Y, whose faces are all inspectable in phase 1). The planner's optimal tour
   interleaves blades, so this task is planned on its own: a turbine whose only inspected blade is
@@ -99,7 +100,7 @@ def build_mission(cfg: EnvConfig) -> Mission:
         sel = np.arange(first, len(plan.s))
         surfaces = tuple(t.surface for t in plan.tour)
         inspected = np.setdiff1d(np.arange(turb.n_blade_triangles), plan.ignored_triangles)
-        turbines = (plan.turbine_phase1, plan.turbine_phase2) if np.any(plan.phase == 2) else (plan.turbine_phase1,)
+        turbines = plan.turbines                 # one per rotor position the plan uses (phase k -> k-1)
         return Mission("full", plan, *_slice(plan, sel), turbines=turbines, inspected=inspected,
                        surfaces=surfaces)
 

@@ -28,7 +28,11 @@ class PlannerConfig:
         Take-off point; ``None``: on the ground in front of the rotor, below the front faces'
         stand-off plane.
     rotor_turn_deg
-        Rotor turn between phase 1 and phase 2 (right-handed about the rotor axis).
+        Rotor turn between phase 1 and phase 2 (right-handed about the rotor axis; the paper's 120
+        deg); ``None``: the planner chooses the rotor positions (none, one or two turns) with the
+        least total flight (see :mod:`.plan`).
+    rotor_turn_step_deg
+        With ``rotor_turn_deg=None``: the candidate turns are the multiples of this in (-180, 180].
     max_down_deg, max_up_deg
         A level camera inspects a surface in a phase only if its normal's elevation lies in
         ``[-max_down_deg, max_up_deg]``; other surfaces are deferred to phase 2 (the inverted Y's
@@ -55,7 +59,8 @@ class PlannerConfig:
     standoff: float = 7.0
     spacing: float = 0.1
     start: tuple[float, float, float] | None = None
-    rotor_turn_deg: float = 120.0
+    rotor_turn_deg: float | None = 120.0
+    rotor_turn_step_deg: float = 10.0
     max_down_deg: float = 45.0
     max_up_deg: float = 75.0
     clearance: float = 2.0
@@ -75,7 +80,9 @@ class PlannerConfig:
         if self.start is not None:
             s = check_array("start", self.start, (3,))
             put("start", (float(s[0]), float(s[1]), float(s[2])))
-        put("rotor_turn_deg", check_range("rotor_turn_deg", self.rotor_turn_deg, -360.0, 360.0))
+        if self.rotor_turn_deg is not None:
+            put("rotor_turn_deg", check_range("rotor_turn_deg", self.rotor_turn_deg, -360.0, 360.0))
+        put("rotor_turn_step_deg", check_range("rotor_turn_step_deg", self.rotor_turn_step_deg, 1.0, 60.0))
         put("max_down_deg", check_range("max_down_deg", self.max_down_deg, 0.0, 89.0))
         put("max_up_deg", check_range("max_up_deg", self.max_up_deg, 0.0, 89.0))
         put("clearance", check_positive("clearance", self.clearance))

@@ -57,11 +57,22 @@ def _check_instance(ends: np.ndarray, start: np.ndarray, forbidden: np.ndarray |
 class HeldKarp:
     """The DP table of one instance: optimal costs to finish at each node, and the tours."""
 
-    def __init__(self, ends: np.ndarray, start: np.ndarray, forbidden: np.ndarray | None = None) -> None:
-        ends, start, forb = _check_instance(ends, start, forbidden)
+    def __init__(self, ends: np.ndarray, start: np.ndarray | None, forbidden: np.ndarray | None = None, *,
+                 start_cost: np.ndarray | None = None) -> None:
+        """``start_cost`` (optional, ``(2n,)``) replaces the straight distances from ``start`` to the
+        entry nodes, e.g. a one-hot 0/inf vector for tours that must begin at one given node."""
+        ends, start, forb = _check_instance(ends, np.zeros(3) if start is None else start, forbidden)
         self.n = n = len(ends)
         nodes = ends.reshape(2 * n, 3)
-        self.start_cost = np.linalg.norm(nodes - start, axis=1)
+        if start_cost is None:
+            if start is None:
+                raise ValueError("HeldKarp needs start or start_cost")
+            self.start_cost = np.linalg.norm(nodes - start, axis=1)
+        else:
+            sc = np.asarray(start_cost, dtype=np.float64)
+            if sc.shape != (2 * n,) or np.any(np.isnan(sc)):
+                raise ValueError(f"start_cost must have shape ({2 * n},) without NaN, got {sc.shape}")
+            self.start_cost = sc
         D = np.linalg.norm(nodes[:, None] - nodes[None], axis=2)       # exit node -> entry node
         surf = np.arange(2 * n) // 2
         blocked = forb[surf[:, None], surf[None, :]] | (surf[:, None] == surf[None, :])
@@ -79,6 +90,7 @@ class HeldKarp:
         for k in range(n):
             for e in (0, 1):                      # enter at end e, leave at end 1 - e
                 self.dp[1 << k, 2 * k + 1 - e] = self.start_cost[2 * k + e]
+                self.parent[1 << k, 2 * k + 1 - e] = -1
         for size in range(2, n + 1):
             layer = masks[pop == size]
             for k in range(n):

@@ -1,33 +1,43 @@
-"""The inspection plan: clustering -> two-phase exact ordering -> collision-free path.
+"""The inspection plan: clustering -> rotor positions -> exact ordering -> collision-free path.
 
-Phases (the paper's section "Automated Inspection Framework"): surfaces a level camera can
-inspect with the rotor as it is (normal elevation within ``[-max_down_deg, max_up_deg]`` and the
-stand-off along the whole centre line at least ``clearance`` from the turbine) form phase 1; the
-others (on the inverted Y, the two faces looking 60 deg down, whose stand-offs would also lie
-inside the other lower blade) are deferred. A deferred surface that is still not inspectable after
-the turn is an error (e.g. the upright Y at azimuth 60 deg needs two turns). After
-phase 1 the drone waits at a *hold point* outside the volume swept by the blades (its last
-stand-off if that is already outside, else that stand-off moved along the rotor axis to the front
-faces' stand-off plane), the rotor turns by ``rotor_turn_deg`` and phase 2 inspects the deferred
-surfaces on the turned rotor (points of phase 2 are in world coordinates on the rotated blades).
+Phases (the paper's section "Automated Inspection Framework", generalised): a surface is
+*inspectable* at a rotor position if a level camera can see it there (normal elevation within
+``[-max_down_deg, max_up_deg]``) and its stand-off along the whole centre line is at least
+``clearance`` from the turbine. Phase 1 inspects, with the rotor as found, every surface
+inspectable there; the others (on the paper's inverted Y, the two faces looking 60 deg down, whose
+stand-offs would also lie inside the other lower blade) wait for a rotor turn. Between phases the
+drone waits at a *hold point* outside the volume swept by the blades (its last stand-off if that
+is already outside, else that stand-off moved along the rotor axis to the front faces' stand-off
+plane), the rotor turns, and the next phase inspects, on the turned rotor, the waiting surfaces
+inspectable there (points of later phases are in world coordinates on the rotated blades).
+
+Rotor positions: with ``rotor_turn_deg`` a number, one turn by that angle (the paper's 120 deg);
+a waiting surface not inspectable after it is an error. With ``rotor_turn_deg=None`` the planner
+chooses: no turn if everything is inspectable as found, else the fewest turns (one, or two, e.g.
+for the upright Y at azimuth 60 deg, where one lower blade's downward edge and the other's need
+different positions) and, among the candidate angles (multiples of ``rotor_turn_step_deg`` in
+(-180, 180]), those with the least total flight, each surface inspected at the first position that
+allows it. :attr:`InspectionPlan.rotor_positions` says which surface is inspected at which rotor
+position.
 
 "Stand-off clear" allows trimming: where only the ends of a surface's stand-off line come too
 close to the turbine (the root of a back face passing behind a large hub), the centre line's end
-nodes move inwards to where it clears, by at most ``max_end_trim`` (default a quarter of the stand-off); ``Surface.trim`` and the
-summary's ``trimmed_m`` say by how much.
+nodes move inwards to where it clears, by at most ``max_end_trim`` (default a quarter of the
+stand-off); ``Surface.trim`` and the summary's ``trimmed_m`` say by how much.
 
-Ordering is exact for the whole two-phase problem: for every way phase 1 can finish (each exit
-node of the full Held-Karp table) the retreat to its hold point and the optimal phase-2 tour from
-there are added, and the cheapest total is kept. Costs are straight-line distances between
-stand-off positions, as in the paper; ``tour_length`` is that objective plus the surface lengths
-(the distance flown along stand-offs if every move were straight), ``path_length`` is the length
-of the actual stand-off path (wraps swing round blade edges, transits may detour).
+Ordering is exact for the whole multi-phase problem: phase 1 is one Held-Karp table from the
+start; for every way a phase can finish (each exit node of its table) the retreat to that exit's
+hold point and the next phase's Held-Karp table from there are added, and the cheapest chain is
+kept (dynamic programming over phases). Costs are straight-line distances between stand-off
+positions, as in the paper; ``tour_length`` is that objective plus the surface lengths (the
+distance flown along stand-offs if every move were straight), ``path_length`` is the length of the
+actual stand-off path (wraps swing round blade edges, transits may detour).
 
 Labels of path samples: ``surface`` is the surface id while a surface's centre line is inspected
-and ``-1`` on every transition (take-off climb, wraps round blade edges, transits, the retreat
-before the turn); ``phase`` is the rotor configuration the sample belongs to: 1 up to and including
-the hold point, 2 after the turn (a transition therefore carries the phase of the surface it
-approaches, except the retreat, which happens before the turn).
+and ``-1`` on every transition (take-off climb, wraps round blade edges, transits, the retreats
+before the turns); ``phase`` is the rotor position the sample belongs to: 1 up to and including
+the first hold point, 2 after the first turn, and so on (a transition therefore carries the phase
+of the surface it approaches, except a retreat, which happens before its turn).
 """
 from __future__ import annotations
 
@@ -45,7 +55,7 @@ from ..turbine import TurbineMesh
 from .clearance import Clearance, DistanceField
 from .clustering import Surface, cluster_surfaces, describe_surface
 from .config import PlannerConfig
-from .ordering import HeldKarp, TourSolution, solve_tour
+from .ordering import HeldKarp, TourSolution
 from .path import Piece, offset_direction, resample, surface_piece, transit_piece, wrap_corner, wrap_piece
 
 CSV_HEADER = "x,y,z,nx,ny,nz,surface,phase,s"
@@ -63,6 +73,16 @@ class TourStop:
     entry: str        # "root" or "tip"
 
 
+@dataclass(frozen=True)
+class RotorPosition:
+    """One rotor position of a plan: phase number, turn from the rotor as found (right-handed about
+    the rotor axis, in (-180, 180]) and the surfaces inspected there, in tour order."""
+
+    phase: int
+    turn_deg: float
+    surfaces: tuple[int, ...]
+
+
 @dataclass(eq=False)
 class InspectionPlan:
     """Result of :func:`plan_inspection` (arrays have one row per path sample)."""
@@ -70,7 +90,7 @@ class InspectionPlan:
     points: np.ndarray            # (K, 3) inspection points
     normals: np.ndarray           # (K, 3) outward unit normals
     surface: np.ndarray           # (K,) surface id, -1 on transitions
-    phase: np.ndarray             # (K,) 1 or 2
+    phase: np.ndarray             # (K,) 1, 2, ... (rotor position, see rotor_positions)
     s: np.ndarray                 # (K,) arc length of the inspection point (non-decreasing)
     standoff_points: np.ndarray   # (K, 3) drone stand-off positions
     standoff_s: np.ndarray        # (K,) arc length of the stand-off path (increasing)
@@ -78,20 +98,45 @@ class InspectionPlan:
     tour: tuple[TourStop, ...]
     tour_length: float
     surfaces: tuple[Surface, ...]             # geometry in phase 1 (ids index this tuple)
-    surfaces_phase2: dict[int, Surface]       # geometry of the deferred surfaces on the turned rotor
+    surfaces_phase2: dict[int, Surface]       # geometry of the surfaces inspected after a turn, there
     surface_phase: np.ndarray                 # (n_surfaces,) phase each surface is inspected in
-    turbine_phase1: TurbineMesh
-    turbine_phase2: TurbineMesh               # the rotor turned by config.rotor_turn_deg
+    turbines: tuple[TurbineMesh, ...]         # the turbine at each rotor position (index 0 = phase 1)
+    rotor_positions: tuple[RotorPosition, ...]
     standoff: float
     config: PlannerConfig
     start: np.ndarray
-    hold_point: np.ndarray | None             # where the drone waits for the rotor turn
+    hold_points: tuple[np.ndarray, ...]       # where the drone waits for each rotor turn
     ignored_triangles: np.ndarray             # blade triangles in no surface (e.g. caps of a file)
     timings: dict[str, float] = field(default_factory=dict)
 
     @property
     def n_surfaces(self) -> int:
         return len(self.surfaces)
+
+    @property
+    def n_phases(self) -> int:
+        return len(self.rotor_positions)
+
+    @property
+    def turbine_phase1(self) -> TurbineMesh:
+        return self.turbines[0]
+
+    @property
+    def turbine_phase2(self) -> TurbineMesh | None:
+        """The turbine after the first rotor turn (``None`` if the plan needs none)."""
+        return self.turbines[1] if len(self.turbines) > 1 else None
+
+    @property
+    def hold_point(self) -> np.ndarray | None:
+        """Where the drone waits for the first rotor turn (``None`` without a turn)."""
+        return self.hold_points[0] if self.hold_points else None
+
+    @property
+    def rotor_turns_deg(self) -> tuple[float, ...]:
+        """The turns between consecutive phases (what the operator does at each hold)."""
+        t = [r.turn_deg for r in self.rotor_positions]
+        return tuple(float((b - a + 180.0) % 360.0 - 180.0) if (b - a) % 360.0 != 180.0 else 180.0
+                     for a, b in zip(t[:-1], t[1:]))
 
     @property
     def path_length(self) -> float:
@@ -103,14 +148,17 @@ class InspectionPlan:
         return self.surfaces_phase2.get(surface_id, self.surfaces[surface_id])
 
     def turbine(self, phase: int) -> TurbineMesh:
-        return self.turbine_phase1 if phase == 1 else self.turbine_phase2
+        """The turbine at the rotor position of ``phase`` (1-based)."""
+        if not 1 <= int(phase) <= len(self.turbines):
+            raise ValueError(f"phase must lie in [1, {len(self.turbines)}], got {phase!r}")
+        return self.turbines[int(phase) - 1]
 
     def min_clearance(self, cap: float | None = None) -> float:
         """Exact smallest distance from the path's stand-off positions to the turbine of their
         phase (capped at ``cap``, default the stand-off distance)."""
         cap = self.standoff if cap is None else cap
         best = cap
-        for ph in (1, 2):
+        for ph in range(1, self.n_phases + 1):
             sel = self.phase == ph
             if sel.any():
                 d = DistanceField(self.turbine(ph).all_triangles).distance(self.standoff_points[sel], cap)
@@ -139,7 +187,9 @@ class InspectionPlan:
             "samples": int(len(self.points)),
             "spacing_m": self.config.spacing,
             "standoff_m": self.standoff,
-            "rotor_turn_deg": self.config.rotor_turn_deg,
+            "rotor_turn_deg": self.rotor_turns_deg[0] if self.rotor_turns_deg else None,
+            "rotor_positions": [{"phase": r.phase, "turn_deg": r.turn_deg, "surfaces": list(r.surfaces)}
+                                for r in self.rotor_positions],
             "trimmed_m": {i: [round(float(t), 4) for t in self.surface_geometry(i).trim]
                           for i in range(self.n_surfaces) if any(self.surface_geometry(i).trim)},
             "plan_time_s": round(self.timings.get("total", float("nan")), 6),
@@ -174,35 +224,89 @@ def _inspectable(clr: Clearance, g: Surface, d: float, mode: str, max_trim: floa
     """``g`` (with its ends trimmed inwards if needed) if its stand-off line is clear, else why not.
 
     The stand-off of a surface is the centre line shifted by a constant vector, so clear points of
-    the stand-off line map one-to-one to points of the centre line. The line is sampled finely
-    (``h`` at most a quarter of the check step); the clear part must be one run that reaches to
-    within ``max_trim`` of both ends. Samples must clear ``clearance + check_step/2 + h``, so the
-    resampled path on the trimmed line passes :meth:`Clearance.polyline_clear` as well.
+    the stand-off line map one-to-one to points of the centre line. The line is first checked at
+    the check step; if only stretches within ``max_trim`` (+ one step) of its ends fail, those are
+    resampled finely (``h`` = a quarter of the check step) and cut where the samples clear
+    ``clearance + check_step/2 + h``, so the resampled path on the trimmed line passes
+    :meth:`Clearance.polyline_clear` as well.
     """
     e = _standoff_ends([g], d, mode)[0]
-    if clr.polyline_clear(e):
-        return g
     length = float(np.linalg.norm(e[1] - e[0]))
-    h = min(clr.step / 4.0, max(length, 1e-9) / 8.0)
-    n = max(2, math.ceil(length / h) + 1)
-    tau = np.linspace(0.0, 1.0, n)
-    pts = e[0] + tau[:, None] * (e[1] - e[0])
-    dist = clr.field.distance(pts, clr.required + h + 1e-6)
-    ok = dist >= clr.required + h
-    dmin = float(clr.field.distance(pts, d).min())
+    n_c = max(2, math.ceil(length / clr.step) + 1)
+    tau_c = np.linspace(0.0, 1.0, n_c)
+    pts_c = e[0] + tau_c[:, None] * (e[1] - e[0])
+    ok_c = clr.distances(pts_c) >= clr.required
+    if ok_c.all():
+        return g
+    dmin = float(clr.field.distance(pts_c[~ok_c], d).min())
     blocked = (f"standoff {d!r} m puts the drone {dmin:.2f} m from the turbine (clearance "
                f"{clr.clearance} m + check_step/2 required)")
-    if not ok.any():
-        return blocked
-    i0, i1 = int(np.argmax(ok)), int(n - 1 - np.argmax(ok[::-1]))
-    trim = (tau[i0] * length, (1.0 - tau[i1]) * length)
-    if not ok[i0:i1 + 1].all() or max(trim) > max_trim:
-        return (f"{blocked}; its clear part would need {trim[0]:.2f} m (root) and {trim[1]:.2f} m (tip) "
-                f"trimmed from the ends, more than max_end_trim {max_trim!r} m" if ok[i0:i1 + 1].all()
-                else f"{blocked} away from the ends of its centre line")
-    root, tip = g.root + tau[i0] * (g.tip - g.root), g.root + tau[i1] * (g.tip - g.root)
-    return dataclasses.replace(g, root=root, tip=tip,
-                               trim=(float(g.trim[0] + trim[0]), float(g.trim[1] + trim[1])))
+    x = tau_c * length
+    bad = x[~ok_c]
+    reach = max_trim + clr.step
+    if max_trim <= 0 or not np.all((bad <= reach) | (bad >= length - reach)) or length <= 2 * reach:
+        return (f"{blocked} away from the ends of its centre line" if max_trim > 0 else
+                f"{blocked}; trimming its ends is off (max_end_trim {max_trim!r} m)")
+    h = clr.step / 4.0
+    cuts = []
+    for end, sign in ((0.0, 1.0), (length, -1.0)):
+        xs = end + sign * np.arange(0.0, reach + h / 2, h)
+        pts = e[0] + (xs / length)[:, None] * (e[1] - e[0])
+        ok = clr.field.distance(pts, clr.required + h + 1e-6) >= clr.required + h
+        if not ok.any():
+            return blocked
+        cuts.append(float(abs(xs[int(np.argmax(ok))] - end)))
+    if max(cuts) > max_trim:
+        return (f"{blocked}; its clear part would need {cuts[0]:.2f} m (root) and {cuts[1]:.2f} m (tip) "
+                f"trimmed from the ends, more than max_end_trim {max_trim!r} m")
+    root = g.root + cuts[0] / length * (g.tip - g.root)
+    tip = g.tip - cuts[1] / length * (g.tip - g.root)
+    trimmed = dataclasses.replace(g, root=root, tip=tip,
+                                  trim=(float(g.trim[0] + cuts[0]), float(g.trim[1] + cuts[1])))
+    if not clr.polyline_clear(_standoff_ends([trimmed], d, mode)[0]):   # pragma: no cover - by construction
+        return f"{blocked} away from the ends of its centre line"
+    return trimmed
+
+
+def _wrap_deg(angle: float) -> float:
+    """Angle in (-180, 180]."""
+    w = (float(angle) + 180.0) % 360.0 - 180.0
+    return 180.0 if w == -180.0 else w
+
+
+class _Position:
+    """A candidate rotor position: the turned turbine, its clearance checker (built on first use)
+    and, per surface on demand, its trimmed geometry there or why it is not inspectable."""
+
+    def __init__(self, turbine: TurbineMesh, surfaces: list[Surface], turn_deg: float, cfg: PlannerConfig,
+                 frame: np.ndarray, offsets: tuple[float, ...]) -> None:
+        self.turn = turn_deg
+        self.turbine = turbine if turn_deg == 0.0 else turbine.rotated(turn_deg)
+        self._surfaces, self._cfg, self._frame, self._offsets = surfaces, cfg, frame, offsets
+        self._clr: Clearance | None = None
+        self._checked: dict[int, Surface | str] = {}
+
+    @property
+    def clr(self) -> Clearance:
+        if self._clr is None:
+            c = self._cfg
+            self._clr = Clearance(DistanceField(self.turbine.all_triangles), c.clearance, c.check_step,
+                                  self._frame, self._offsets)
+        return self._clr
+
+    def check(self, sid: int) -> Surface | str:
+        if sid not in self._checked:
+            c, s0 = self._cfg, self._surfaces[sid]
+            g = s0 if self.turn == 0.0 else describe_surface(self.turbine, s0.triangles, sid, s0.blade)
+            if not -c.max_down_deg <= g.elevation_deg <= c.max_up_deg:
+                self._checked[sid] = (f"normal elevation {g.elevation_deg:.1f} deg, outside [-max_down_deg, "
+                                      f"max_up_deg] = [-{c.max_down_deg}, {c.max_up_deg}]")
+            else:
+                self._checked[sid] = _inspectable(self.clr, g, c.standoff, c.standoff_mode, c.end_trim_limit)
+        return self._checked[sid]
+
+    def inspectable(self, sids: list[int]) -> list[int]:
+        return [i for i in sids if isinstance(self.check(i), Surface)]
 
 
 class _RotorGeometry:
@@ -235,8 +339,90 @@ def _default_start(turbine: TurbineMesh, rotor: _RotorGeometry, standoff: float)
 
 
 # --------------------------------------------------------------------------- planner
+@dataclass
+class _Chain:
+    """The optimal tour chained over phases (see the module docstring)."""
+
+    cost: float
+    tours: list[TourSolution]
+    holds: list[np.ndarray]
+
+
+class _FromAnyEntry:
+    """One phase's tours from an arbitrary start: ``T[w, v]``, the cheapest way to enter first at
+    node ``w`` and finish at exit node ``v`` (the start leg excluded), one Held-Karp table per
+    entry node. The best tour from a point ``p`` is then ``min_w |p - node_w| + T[w, v]``, so a
+    phase is tabled once however many hold points it may start from."""
+
+    def __init__(self, ends: np.ndarray, forbidden: np.ndarray) -> None:
+        self.nodes = ends.reshape(-1, 3)
+        m = len(self.nodes)
+        self.tables = []
+        for w in range(m):
+            one_hot = np.full(m, np.inf)
+            one_hot[w] = 0.0
+            self.tables.append(HeldKarp(ends, None, forbidden, start_cost=one_hot))
+        self.T = np.stack([t.end_costs for t in self.tables]) if m else np.zeros((0, 0))
+
+    def costs_from(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(2n,)`` best cost to finish at each exit node starting from ``p``, and the entry used."""
+        tot = np.linalg.norm(self.nodes - p, axis=1)[:, None] + self.T
+        w = np.argmin(tot, axis=0)
+        return tot[w, np.arange(tot.shape[1])], w
+
+    def tour(self, p: np.ndarray, exit_node: int) -> TourSolution:
+        cost, w = self.costs_from(p)
+        sol = self.tables[int(w[exit_node])].tour(exit_node)
+        return TourSolution(stops=sol.stops, cost=float(cost[exit_node]))
+
+
+def _chain(E: list[np.ndarray], F: list[np.ndarray], hk1: HeldKarp, rotor: "_RotorGeometry",
+           cfg: PlannerConfig, keys: list[Any] | None = None,
+           cache: dict[Any, _FromAnyEntry] | None = None) -> _Chain | None:
+    """Exact multi-phase ordering: DP over phases; phase k starts at the hold point of the exit
+    node of phase k-1 it follows (all exit nodes tried). ``keys[k]`` names phase k's instance so
+    that its table is reused from ``cache`` across the candidate rotor positions."""
+    costs = hk1.end_costs
+    layers: list[tuple[_FromAnyEntry, np.ndarray, np.ndarray]] = []
+    for k in range(1, len(E)):
+        prev_nodes = E[k - 1].reshape(-1, 3)
+        if cache is not None and keys is not None:
+            if keys[k] not in cache:
+                cache[keys[k]] = _FromAnyEntry(E[k], F[k])
+            table = cache[keys[k]]
+        else:
+            table = _FromAnyEntry(E[k], F[k])
+        holds = np.array([rotor.hold_point(q, cfg.clearance, cfg.standoff) for q in prev_nodes])
+        retreat = np.linalg.norm(holds - prev_nodes, axis=1)
+        new = np.full(2 * len(E[k]), np.inf)
+        parent = np.full(2 * len(E[k]), -1, dtype=np.int64)
+        for u in np.argsort(costs, kind="stable"):
+            if not np.isfinite(costs[u]):
+                break
+            tot = costs[u] + retreat[u] + table.costs_from(holds[u])[0]
+            better = tot < new
+            new[better] = tot[better]
+            parent[better] = u
+        layers.append((table, parent, holds))
+        costs = new
+    v = int(np.argmin(costs))
+    if not np.isfinite(costs[v]):
+        return None
+    total = float(costs[v])
+    tours: list[TourSolution] = []
+    hold_list: list[np.ndarray] = []
+    for table, parent, holds in reversed(layers):
+        u = int(parent[v])
+        tours.append(table.tour(holds[u], v))
+        hold_list.append(holds[u])
+        v = u
+    tours.append(hk1.tour(v))
+    return _Chain(total, tours[::-1], hold_list[::-1])
+
+
 def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, **options: Any) -> InspectionPlan:
-    """Plan the two-phase inspection of ``turbine``; ``options`` override ``config`` fields."""
+    """Plan the inspection of ``turbine`` (rotor positions, order, path); ``options`` override
+    ``config`` fields."""
     if not isinstance(turbine, TurbineMesh):
         raise ValueError(f"turbine must be a TurbineMesh, got {type(turbine).__name__}")
     if config is not None and not isinstance(config, PlannerConfig):
@@ -249,95 +435,119 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     surfaces, ignored = cluster_surfaces(turbine, angle_deg=cfg.cluster_angle_deg)
     t1 = time.perf_counter()
 
-    # 2. phases, stand-offs, clearance ----------------------------------------------------
-    elev = np.array([s.elevation_deg for s in surfaces])
-    in_band = (elev >= -cfg.max_down_deg) & (elev <= cfg.max_up_deg)
+    # 2. rotor positions: what is inspectable where -----------------------------------------
     rotor = _RotorGeometry(turbine)
     frame = _frame(turbine.rotor_axis)
     offsets = tuple(d * f for f in (0.5, 1.0, 2.0, 4.0))
-    clr1 = Clearance(DistanceField(turbine.all_triangles), cfg.clearance, cfg.check_step, frame, offsets)
-    # phase 1: normal within the level camera's band and the stand-off clear of the turbine
-    why1: dict[int, str] = {}
-    geo1: dict[int, Surface] = {}
-    for sf in surfaces:
-        r = _inspectable(clr1, sf, d, mode, cfg.end_trim_limit) if in_band[sf.id] else \
-            f"normal elevation {elev[sf.id]:.1f} deg"
-        if isinstance(r, str):
-            why1[sf.id] = r
-        else:
-            geo1[sf.id] = r
-    ids1 = sorted(geo1)
-    ids2 = [s.id for s in surfaces if s.id not in geo1]
+    positions: dict[float, _Position] = {}
+
+    def position(turn: float) -> _Position:
+        turn = _wrap_deg(turn) if turn != 0.0 else 0.0
+        if turn not in positions:
+            positions[turn] = _Position(turbine, surfaces, turn, cfg, frame, offsets)
+        return positions[turn]
+
+    here = position(0.0)
+    all_ids = [sf.id for sf in surfaces]
+    ids1 = here.inspectable(all_ids)
+    waiting = [i for i in all_ids if i not in ids1]
     if not ids1:
+        elev = [round(sf.elevation_deg, 1) for sf in surfaces]
         raise ValueError("no surface can be inspected before the rotor turn (normal elevations "
-                         f"{np.round(elev, 1).tolist()} deg; standoff {d} m, clearance {cfg.clearance} m)")
-    turbine2 = turbine.rotated(cfg.rotor_turn_deg)
-    clr2 = Clearance(DistanceField(turbine2.all_triangles), cfg.clearance, cfg.check_step, frame, offsets) \
-        if ids2 else None
-    geo2: dict[int, Surface] = {}
-    for i in ids2:
-        g = describe_surface(turbine2, surfaces[i].triangles, i, surfaces[i].blade)
-        if not -cfg.max_down_deg <= g.elevation_deg <= cfg.max_up_deg:
-            r: Surface | str = (f"its normal elevation is {g.elevation_deg:.1f} deg after the turn, outside "
-                                f"[-max_down_deg, max_up_deg] = [-{cfg.max_down_deg}, {cfg.max_up_deg}]")
-        else:
-            r = _inspectable(clr2, g, d, mode, cfg.end_trim_limit)
-        if isinstance(r, str):
-            raise ValueError(f"surface {i} cannot be inspected before the rotor turn ({why1[i]}) nor after "
-                             f"rotor_turn_deg {cfg.rotor_turn_deg!r}: {r}")
-        geo2[i] = r
-    G1 = [geo1[i] for i in ids1]
-    G2 = [geo2[i] for i in ids2]
-    F1, F2 = _forbidden(G1), _forbidden(G2)
-    E1 = _standoff_ends(G1, d, mode)
-    E2 = _standoff_ends(G2, d, mode)
+                         f"{elev} deg; standoff {d} m, clearance {cfg.clearance} m)")
     start = np.asarray(cfg.start, dtype=np.float64) if cfg.start is not None else _default_start(turbine, rotor, d)
-    if not clr1.is_clear(start[None]):
+    if not here.clr.is_clear(start[None]):
         raise ValueError(f"start {np.round(start, 3).tolist()} is closer than clearance "
                          f"{cfg.clearance} m (+ check_step/2) to the turbine")
-    t2 = time.perf_counter()
+    G1 = [here.check(i) for i in ids1]
+    E1 = _standoff_ends(G1, d, mode)
+    hk1 = HeldKarp(E1, start, _forbidden(G1))
+    t_setup = time.perf_counter()
 
-    # 3. exact ordering of both phases ----------------------------------------------------
-    hk = HeldKarp(E1, start, F1)
-    end_costs = hk.end_costs
-    best: tuple[float, int, np.ndarray | None, TourSolution | None] | None = None
-    for u in np.argsort(end_costs):
-        if not np.isfinite(end_costs[u]):
-            break
-        if not ids2:
-            best = (float(end_costs[u]), int(u), None, None)
-            break
-        q_u = E1.reshape(-1, 3)[u]
-        hold = rotor.hold_point(q_u, cfg.clearance, d)
-        sol2 = solve_tour(E2, hold, F2)
-        if sol2 is None:
-            continue
-        total = float(end_costs[u]) + float(np.linalg.norm(hold - q_u)) + sol2.cost
-        if best is None or total < best[0]:
-            best = (total, int(u), hold, sol2)
+    tables: dict[Any, _FromAnyEntry] = {}
+
+    def groups_for(turns: tuple[float, ...]) -> list[list[int]] | None:
+        """Surfaces per phase when each is inspected at the first position allowing it; ``None``
+        if some remain or a turn would inspect nothing."""
+        left, groups = list(waiting), [ids1]
+        for turn in turns:
+            got = position(turn).inspectable(left)
+            if not got:
+                return None
+            groups.append(got)
+            left = [i for i in left if i not in got]
+        return groups if not left else None
+
+    def evaluate(turns: tuple[float, ...]) -> tuple[float, tuple[float, ...], list[list[int]], _Chain] | None:
+        groups = groups_for(turns)
+        if groups is None:
+            return None
+        geo = [[position(t).check(i) for i in g] for t, g in zip((0.0, *turns), groups)]
+        E = [E1] + [_standoff_ends(g, d, mode) for g in geo[1:]]
+        F = [np.zeros((0, 0))] + [_forbidden(g) for g in geo[1:]]
+        keys = [None] + [(t, tuple(g)) for t, g in zip(turns, groups[1:])]
+        chain = _chain(E, F, hk1, rotor, cfg, keys, tables)
+        return None if chain is None else (chain.cost, turns, groups, chain)
+
+    def key(r: tuple) -> tuple:
+        return (round(r[0], 6), len(r[1]), sum(abs(t) for t in r[1]), [-t for t in r[1]])
+
+    if cfg.rotor_turn_deg is not None:
+        turn = _wrap_deg(cfg.rotor_turn_deg) if cfg.rotor_turn_deg != 0.0 else 0.0
+        if waiting:
+            there = position(turn)
+            for i in waiting:
+                why = there.check(i)
+                if isinstance(why, str):
+                    before = "" if why == here.check(i) else f" ({here.check(i)})"
+                    raise ValueError(f"surface {i} cannot be inspected before the rotor turn{before} "
+                                     f"nor after rotor_turn_deg {cfg.rotor_turn_deg!r}: {why}; rotor_turn_deg=None "
+                                     "lets the planner choose the rotor positions")
+        best = evaluate((turn,) if waiting else ())
+    else:
+        grid = [_wrap_deg(k * cfg.rotor_turn_step_deg) for k in range(1, math.ceil(360.0 / cfg.rotor_turn_step_deg))]
+        grid = sorted({t for t in grid if t != 0.0})
+        best = evaluate(()) if not waiting else None
+        if waiting:
+            results = [r for t in grid if (r := evaluate((t,))) is not None]
+            if not results:
+                useful = [t for t in grid if position(t).inspectable(waiting)]
+                results = [r for a in useful for b in useful if a != b and (r := evaluate((a, b))) is not None]
+            if not results:
+                never = [i for i in waiting if not any(position(t).inspectable([i]) for t in grid)]
+                if never:
+                    raise ValueError(f"surface {never[0]} cannot be inspected at any rotor position (as found: "
+                                     f"{here.check(never[0])}; turns tried every {cfg.rotor_turn_step_deg:g} deg)")
+                raise ValueError(f"surfaces {waiting} need more than two rotor turns (turns tried every "
+                                 f"{cfg.rotor_turn_step_deg:g} deg)")
+            best = min(results, key=key)
     if best is None:
         raise ValueError("no feasible tour: every order needs a direct move between opposite faces")
-    move_cost, u_best, hold, sol2 = best
-    sol1 = hk.tour(u_best)
-    lengths = sum(g.length for g in G1) + sum(g.length for g in G2)
-    tour_length = move_cost + lengths
-    stops = [(ids1[k], e, 1) for k, e in sol1.stops]
-    if sol2 is not None:
-        stops += [(ids2[k], e, 2) for k, e in sol2.stops]
-    t3 = time.perf_counter()
+    move_cost, turns, groups, chain = best
+    turn_list = (0.0, *turns)
+    geo: dict[int, Surface] = {}
+    stops: list[tuple[int, int, int]] = []
+    for ph, (t, g, sol) in enumerate(zip(turn_list, groups, chain.tours), start=1):
+        for i in g:
+            geo[i] = position(t).check(i)
+        stops += [(g[k], e, ph) for k, e in sol.stops]
+    tour_length = move_cost + sum(geo[i].length for i in geo)
+    t2 = time.perf_counter()
 
-    # 4. path -----------------------------------------------------------------------------
+    # 3. path -----------------------------------------------------------------------------
     pieces: list[Piece] = []
     pos = start
     prev: tuple[Surface, int, int] | None = None      # (surface geometry, exit end, phase)
-    prev_n = geo1[stops[0][0]].normal if stops[0][2] == 1 else geo2[stops[0][0]].normal
+    prev_n = geo[stops[0][0]].normal
+    cur_phase = 1
     for sid, entry, ph in stops:
-        g = geo1[sid] if ph == 1 else geo2[sid]
-        clr = clr1 if ph == 1 else clr2
-        if ph == 2 and prev is not None and prev[2] == 1:
-            route = clr1.route(pos, hold)                   # retreat before the rotor turn
-            pieces.append(transit_piece(route, prev_n, prev_n, 1, d, mode, cfg.check_step))
-            pos, prev = hold, None
+        g = geo[sid]
+        clr = position(turn_list[ph - 1]).clr
+        if ph != cur_phase:
+            hold = chain.holds[ph - 2]
+            route = position(turn_list[cur_phase - 1]).clr.route(pos, hold)   # retreat before the turn
+            pieces.append(transit_piece(route, prev_n, prev_n, cur_phase, d, mode, cfg.check_step))
+            pos, prev, cur_phase = hold, None, ph
         a, b = g.ends[entry], g.ends[1 - entry]
         qa = a + d * offset_direction(g.normal, mode)
         piece = None
@@ -359,15 +569,23 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
     sp = resample(pieces, cfg.spacing, d, mode)
     s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(sp.points, axis=0), axis=1))]
     s_q = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(sp.standoff_points, axis=0), axis=1))]
-    t4 = time.perf_counter()
+    t3 = time.perf_counter()
 
     surface_phase = np.ones(len(surfaces), dtype=np.int64)
-    surface_phase[ids2] = 2
+    for ph, g in enumerate(groups, start=1):
+        surface_phase[g] = ph
+    rotor_positions = tuple(RotorPosition(ph, float(t), tuple(sid for sid, _, p in stops if p == ph))
+                            for ph, t in enumerate(turn_list, start=1))
     return InspectionPlan(
         points=sp.points, normals=sp.normals, surface=sp.surface, phase=sp.phase, s=s,
         standoff_points=sp.standoff_points, standoff_s=s_q, kind=sp.kind,
         tour=tuple(TourStop(sid, ph, "root" if e == 0 else "tip") for sid, e, ph in stops),
-        tour_length=float(tour_length), surfaces=tuple(geo1.get(sf.id, sf) for sf in surfaces), surfaces_phase2=geo2,
-        surface_phase=surface_phase, turbine_phase1=turbine, turbine_phase2=turbine2, standoff=d,
-        config=cfg, start=start, hold_point=hold, ignored_triangles=ignored,
-        timings={"cluster": t1 - t0, "setup": t2 - t1, "order": t3 - t2, "path": t4 - t3, "total": t4 - t0})
+        tour_length=float(tour_length), surfaces=tuple(geo[sf.id] if surface_phase[sf.id] == 1 else sf
+                                                       for sf in surfaces),
+        surfaces_phase2={i: geo[i] for i in geo if surface_phase[i] > 1},
+        surface_phase=surface_phase, turbines=tuple(position(t).turbine for t in turn_list),
+        rotor_positions=rotor_positions, standoff=d, config=cfg, start=start,
+        hold_points=tuple(chain.holds), ignored_triangles=ignored,
+        # "order" includes checking the candidate rotor positions (done on demand during the search)
+        timings={"cluster": t1 - t0, "setup": t_setup - t1, "order": t2 - t_setup, "path": t3 - t2,
+                 "total": t3 - t0})

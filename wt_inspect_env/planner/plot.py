@@ -1,4 +1,4 @@
-"""Figure of a plan: one 3-D view per phase, surfaces coloured by id, the drone's stand-off path.
+"""Figure of a plan: one 3-D view per phase (rotor position), surfaces coloured by id, the drone's stand-off path.
 
 Uses matplotlib's Agg canvas directly (no pyplot, no global backend switch), so it works headless
 and does not interfere with other figures of the calling process.
@@ -24,8 +24,8 @@ def _surface_colors(n: int) -> np.ndarray:
 
 
 def plan_figure(plan: InspectionPlan) -> Figure:
-    """Build the figure (two panels if the plan has a phase 2)."""
-    phases = [1, 2] if np.any(plan.phase == 2) else [1]
+    """Build the figure (one panel per rotor position)."""
+    phases = list(range(1, plan.n_phases + 1))
     fig = Figure(figsize=(6.5 * len(phases), 8.0), dpi=110)
     FigureCanvasAgg(fig)
     colors = _surface_colors(plan.n_surfaces)
@@ -53,8 +53,8 @@ def plan_figure(plan: InspectionPlan) -> Figure:
         ax.add_collection3d(Line3DCollection(segs, colors=seg_col, linewidths=widths))
         if ph == 1:
             ax.scatter(*plan.start, color="green", s=40, label="take-off")
-        if plan.hold_point is not None:
-            ax.scatter(*plan.hold_point, color="red", s=40, label="hold for rotor turn")
+        if ph <= len(plan.hold_points):
+            ax.scatter(*plan.hold_points[ph - 1], color="red", s=40, label="hold for rotor turn")
         for stop in plan.tour:
             if stop.phase != ph:
                 continue
@@ -81,8 +81,8 @@ def plan_figure(plan: InspectionPlan) -> Figure:
         ax.set_zlabel("z [m]")
         n_ph = int(np.sum(plan.surface_phase == ph))
         title = f"phase {ph}: {n_ph} surfaces"
-        if ph == 2:
-            title += f" (rotor turned {plan.config.rotor_turn_deg:g} deg)"
+        if ph > 1:
+            title += f" (rotor turned {plan.rotor_positions[ph - 1].turn_deg:g} deg)"
         ax.set_title(title)
         ax.legend(loc="upper left", fontsize=8)
     fig.suptitle(f"Inspection plan: {plan.n_surfaces} surfaces, tour {plan.tour_length:.1f} m "
