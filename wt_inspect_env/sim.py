@@ -98,6 +98,39 @@ def _mesh_arrays(mesh: Any) -> tuple[list, list]:
     return v.tolist(), f.astype(np.int64).ravel().tolist()
 
 
+@dataclass(frozen=True)
+class SubstepConstants:
+    """Per-sub-step constants of the motor lag, torque rows of the mixer and drag, shared by
+    :class:`QuadrotorSim` and the batched simulator (one home, so both integrate the same numbers).
+
+    First-order motor lag, exact for a command held over a sub-step: the rotor state moves by a
+    fraction ``alpha`` of the gap, and the thrust *averaged over the sub-step* (what the force
+    should be) by a fraction ``beta`` (~ alpha / 2), which keeps the impulse right to O(dt^2).
+    Drag in body axes is ``-(lin + quad |v_rel|) v_rel`` per axis.
+    """
+
+    alpha: float
+    beta: float
+    A_tau: tuple[tuple[float, ...], ...]
+    lin_drag: tuple[float, float, float]
+    quad_drag: tuple[float, float, float]
+    has_drag: bool
+
+    @classmethod
+    def of(cls, params: QuadrotorParams, config: SimConfig, mixer: Mixer) -> "SubstepConstants":
+        tau = params.motor_time_constant
+        if config.motor_lag and tau > 0:
+            r = (1.0 / config.physics_hz) / tau
+            alpha = 1.0 - math.exp(-r)
+            beta = 1.0 - alpha / r
+        else:
+            alpha = beta = 1.0
+        lin = tuple(float(x) for x in params.rotor_drag) if config.drag else (0.0,) * 3
+        quad = tuple(0.5 * AIR_DENSITY * float(x) for x in params.body_drag_area) if config.drag else (0.0,) * 3
+        return cls(alpha, beta, tuple(tuple(float(x) for x in mixer.A[row]) for row in (1, 2, 3)), lin, quad,
+                   bool(config.drag and (any(lin) or any(quad))))
+
+
 DRONE_COLLISION_GROUP = 4
 RAY_MASK_WITHOUT_DRONE = 0xFFFF & ~DRONE_COLLISION_GROUP   # rays that do not see the drone itself
 _PARKED = (0.0, 0.0, -1.0e5)      # where unused obstacle bodies wait (far below the ground)
@@ -134,23 +167,10 @@ class QuadrotorSim:
         self.rate_gains = gains
         self.mixer = Mixer(params)
         self.rate_controller = RateController(gains, params.inertia, self.physics_dt)
-        tau = params.motor_time_constant
-        # First-order lag, exact for a command held over a sub-step: the state moves by a fraction
-        # alpha of the gap, and the thrust *averaged over the sub-step* (what the force should be)
-        # by a fraction beta (~ alpha / 2), which keeps the impulse right to O(dt^2).
-        if config.motor_lag and tau > 0:
-            r = self.physics_dt / tau
-            self._alpha = 1.0 - math.exp(-r)
-            self._beta = 1.0 - self._alpha / r
-        else:
-            self._alpha = self._beta = 1.0
-        A = self.mixer.A
-        self._A_tau = tuple(tuple(float(x) for x in A[row]) for row in (1, 2, 3))
+        k = SubstepConstants.of(params, config, self.mixer)
+        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
+        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
         self._rotor_pos = [tuple(float(c) for c in r) for r in params.rotor_positions]
-        self._lin_drag = tuple(float(x) for x in params.rotor_drag) if config.drag else (0.0,) * 3
-        self._quad_drag = (tuple(0.5 * AIR_DENSITY * float(x) for x in params.body_drag_area)
-                           if config.drag else (0.0,) * 3)
-        self._has_drag = config.drag and (any(self._lin_drag) or any(self._quad_drag))
 
         self._obstacle_key: Any = obstacles
         self._obstacle_arrays: tuple[list, list] | None = (

@@ -9,22 +9,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import statistics
 import sys
 import time
 
 import gymnasium as gym
 
-
-def _rss_mb() -> float:
-    """Current resident set size [MB] (Linux /proc; falls back to the peak)."""
-    try:
-        with open("/proc/self/statm") as f:
-            pages = int(f.read().split()[1])
-        return pages * resource.getpagesize() / 2**20
-    except OSError:  # pragma: no cover
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+from .timing_reference import raw_pybullet_rate, rss_mb
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
@@ -45,7 +36,7 @@ def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
     env.reset(seed=0)
     for _ in range(200):  # warm-up
         env.step(hover)
-    rss0 = _rss_mb()
+    rss0 = rss_mb()
     rates, resets, total = [], 0, 0
     for _ in range(args.repeats):
         t0 = time.perf_counter()
@@ -56,13 +47,16 @@ def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
                 resets += 1
         rates.append(args.steps / (time.perf_counter() - t0))
         total += args.steps
-    rss1 = _rss_mb()
+    rss1 = rss_mb()
+    raw = raw_pybullet_rate(env.params, env.config.ctrl_hz, env.config.physics_hz,
+                            obstacle=env.mission.turbines[0].mesh)
     env.close()
     med = statistics.median(rates)
     out = {"task": args.task, "steps_per_s": med, "realtime_factor": med * env.dt,
            "steps_per_s_min": min(rates), "steps_per_s_max": max(rates), "steps": total, "resets": resets,
            "ctrl_hz": env.config.ctrl_hz, "physics_hz": env.config.physics_hz, "camera_hz": env.config.camera_hz,
-           "rss_start_mb": rss0, "rss_end_mb": rss1, "rss_growth_mb": rss1 - rss0}
+           "rss_start_mb": rss0, "rss_end_mb": rss1, "rss_growth_mb": rss1 - rss0,
+           "raw_pybullet_steps_per_s": raw, "ratio_to_raw_pybullet": med / raw}
     if args.json:
         print(json.dumps(out))
     else:
@@ -70,6 +64,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
               f"min {min(rates):,.0f}, max {max(rates):,.0f}) = {out['realtime_factor']:.1f}x real time "
               f"at {env.config.ctrl_hz:g} Hz control, {env.config.physics_hz:g} Hz physics, "
               f"coverage frames at {env.config.camera_hz:g} Hz")
+        print(f"reference: raw PyBullet stepping of one body under the same forces {raw:,.0f} steps/s in the same "
+              f"run; ratio env / raw = {med / raw:.3f}")
         print(f"memory: {rss0:.1f} MB -> {rss1:.1f} MB over {total:,} steps and {resets} resets "
               f"({rss1 - rss0:+.1f} MB)")
     return 0

@@ -19,6 +19,7 @@ from ..dynamics import hover_state
 from ..quadrotor import PRESETS, get_preset
 from ..sim import QuadrotorSim, SimConfig
 from ..wind import WIND_TYPES, make_wind
+from .timing_reference import raw_pybullet_rate
 
 
 def run_bench(preset: str = "matrice100", wind: str = "gust", mean_speed: float = 4.0,
@@ -56,9 +57,11 @@ def run_bench(preset: str = "matrice100", wind: str = "gust", mean_speed: float 
         final = sim.state
     finally:
         sim.close()
+    raw = raw_pybullet_rate(params, ctrl_hz, physics_hz, obstacle=mesh, control_steps=min(n_steps, 5000))
+    median = statistics.median(factors)
     return {
         "benchmark": "sim",
-        "realtime_factor": statistics.median(factors),
+        "realtime_factor": median,
         "realtime_factor_min": min(factors),
         "realtime_factor_max": max(factors),
         "repeats": repeats,
@@ -71,6 +74,8 @@ def run_bench(preset: str = "matrice100", wind: str = "gust", mean_speed: float 
         "per_rotor_forces": per_rotor_forces,
         "final_altitude_m": float(final[2]),
         "target_realtime_factor": 200.0,
+        "raw_pybullet_realtime_factor": raw / ctrl_hz,
+        "ratio_to_raw_pybullet": median * ctrl_hz / raw,
         "python": platform.python_version(),
     }
 
@@ -103,4 +108,6 @@ def main(argv: list[str], prog: str = "wt-inspect bench sim") -> int:
               f"{out['realtime_factor_max']:.0f}x; target >= 200x)")
         print(f"  {args.preset}, wind {out['wind']}, {args.ctrl_hz:g} Hz commands, "
               f"{args.physics_hz:g} Hz physics + rate loop, {out['sim_seconds']:g} s per repeat")
+        print(f"  reference: raw PyBullet stepping of one body under the same forces, same run: "
+              f"{out['raw_pybullet_realtime_factor']:.0f}x real time; ratio sim / raw = {out['ratio_to_raw_pybullet']:.3f}")
     return 0

@@ -27,7 +27,6 @@ One ``stepSimulation`` and one ``getContactPoints`` per sub-step serve all drone
 """
 from __future__ import annotations
 
-import math
 from itertools import chain
 
 _flat = chain.from_iterable
@@ -36,9 +35,9 @@ from typing import Any, Sequence
 import numpy as np
 import pybullet as p
 
-from ..quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams
+from ..quadrotor import GRAVITY, QuadrotorParams
 from ..rate_control import Mixer, RateController, RateGains
-from ..sim import DRONE_COLLISION_GROUP, SimConfig, _mesh_arrays
+from ..sim import DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays
 from ..validation import check_array
 from ..wind import WindField, wind_velocities
 
@@ -106,18 +105,9 @@ class BatchedQuadrotorSim:
         self.mixer = Mixer(params)
         B = self.mixer
         self._bt, self._bx, self._by, self._bz = B._bt, B._bx, B._by, B._bz
-        tau = params.motor_time_constant
-        if config.motor_lag and tau > 0:
-            r = self.physics_dt / tau
-            self._alpha = 1.0 - math.exp(-r)
-            self._beta = 1.0 - self._alpha / r
-        else:
-            self._alpha = self._beta = 1.0
-        self._A_tau = tuple(tuple(float(x) for x in self.mixer.A[row]) for row in (1, 2, 3))
-        self._lin_drag = tuple(float(x) for x in params.rotor_drag) if config.drag else (0.0,) * 3
-        self._quad_drag = (tuple(0.5 * AIR_DENSITY * float(x) for x in params.body_drag_area)
-                           if config.drag else (0.0,) * 3)
-        self._has_drag = config.drag and (any(self._lin_drag) or any(self._quad_drag))
+        k = SubstepConstants.of(params, config, self.mixer)
+        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
+        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
 
         self._client = -1
         self._build_world(geometries)
