@@ -266,6 +266,50 @@ class SolveStats:
         return dict(self.__dict__)
 
 
+def _gauss_newton_stage(ocp: OCP, regularization: float) -> dict[str, Any]:
+    """Symbols and Gauss-Newton data of one stage (shared by both QP-data layouts): Hessian
+    H = J^T W J (+ regularization I), gradient g = J^T W r, dynamics Jacobian AB = d F / d[x, u],
+    the multiple-shooting gap x_next - F and the stage cost, for z = [x, u]."""
+    nx, nu = ocp.nx, ocp.nu
+    x, u, xn = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("x_next", nx)
+    p, W = ca.SX.sym("p", ocp.np), ca.SX.sym("W", ocp.ny)
+    z = ca.vertcat(x, u)
+    r = ocp.stage_residual(x, u, p)
+    J = ca.jacobian(r, z)
+    WJ = ca.diag(W) @ J
+    H = J.T @ WJ
+    if regularization > 0:
+        H = H + regularization * ca.SX.eye(nx + nu)
+    xnext = ocp.dynamics(x, u, p)
+    return {"x": x, "u": u, "x_next": xn, "p": p, "W": W, "z": z, "H": H, "g": WJ.T @ r,
+            "AB": ca.jacobian(xnext, z), "neg_defect": xn - xnext, "cost": 0.5 * ca.dot(W * r, r)}
+
+
+def _gauss_newton_terminal(ocp: OCP, regularization: float) -> ca.Function:
+    """``(x_N, p, W_N) -> (H_N, g_N, cost_N)`` of the terminal residual."""
+    nx = ocp.nx
+    xN, p, WN = ca.SX.sym("xN", nx), ca.SX.sym("p", ocp.np), ca.SX.sym("WN", ocp.ny_terminal)
+    rN = ocp.terminal_residual(xN, p)
+    JN = ca.jacobian(rN, xN)
+    WJN = ca.diag(WN) @ JN
+    HN = JN.T @ WJN
+    if regularization > 0:
+        HN = HN + regularization * ca.SX.eye(nx)
+    return ca.Function(f"{ocp.name}_terminal", [xN, p, WN], [HN, WJN.T @ rN, 0.5 * ca.dot(WN * rN, rN)],
+                       ["xN", "p", "WN"], ["HN", "gN", "costN"])
+
+
+def _horizon_symbols(ocp: OCP) -> dict[str, Any]:
+    """MX inputs (w, p, W, W_N) of a QP-data function and the stage-wise views of w."""
+    N, nx, nz = ocp.horizon, ocp.nx, ocp.nx + ocp.nu
+    w = ca.MX.sym("w", ocp.n_vars)
+    body = ca.reshape(w[:N * nz], nz, N)
+    wN = w[N * nz:]
+    return {"w": w, "p": ca.MX.sym("p", ocp.np), "W": ca.MX.sym("W", ocp.ny), "WN": ca.MX.sym("WN", ocp.ny_terminal),
+            "Xs": body[:nx, :], "Us": body[nx:, :], "wN": wN,
+            "Xnext": ca.horzcat(body[:nx, 1:], wN) if N > 1 else wN}
+
+
 def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function:
     """The preparation-phase function ``(w, p, W, W_N) -> (H, g, A, lba, uba, cost)``.
 
@@ -274,61 +318,24 @@ def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function
     constraint margins; ``cost`` the objective at ``w``. Stages are evaluated by one SX stage
     function mapped over the horizon, so the generated C is a loop rather than N copies.
     """
-    N, nx, nu, npar = ocp.horizon, ocp.nx, ocp.nu, ocp.np
-    ny, nyN, nh = ocp.ny, ocp.ny_terminal, ocp.nh
+    N, nx, nu, nh = ocp.horizon, ocp.nx, ocp.nu, ocp.nh
     nz = nx + nu
-
-    # -- one stage, symbolic ------------------------------------------------------------------
-    x = ca.SX.sym("x", nx)
-    u = ca.SX.sym("u", nu)
-    xn = ca.SX.sym("x_next", nx)
-    p = ca.SX.sym("p", npar)
-    W = ca.SX.sym("W", ny)
-    z = ca.vertcat(x, u)
-    r = ocp.stage_residual(x, u, p)
-    J = ca.jacobian(r, z)
-    WJ = ca.diag(W) @ J
-    H = J.T @ WJ
-    if regularization > 0:
-        H = H + regularization * ca.SX.eye(nz)
-    g = WJ.T @ r
-    xnext = ocp.dynamics(x, u, p)
-    AB = ca.jacobian(xnext, z)
-    neg_defect = xn - xnext
-    cost = 0.5 * ca.dot(W * r, r)
-    outs = [H, g, AB, neg_defect, cost]
+    st = _gauss_newton_stage(ocp, regularization)
+    outs = [st["H"], st["g"], st["AB"], st["neg_defect"], st["cost"]]
     names = ["H", "g", "AB", "neg_defect", "cost"]
     if nh:
-        hval = ocp.path_constraint(x, u, p)
-        outs += [ca.jacobian(hval, z), hval]
+        hval = ocp.path_constraint(st["x"], st["u"], st["p"])
+        outs += [ca.jacobian(hval, st["z"]), hval]
         names += ["CD", "h"]
-    stage = ca.Function(f"{ocp.name}_stage", [x, u, xn, p, W], outs,
+    stage = ca.Function(f"{ocp.name}_stage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]], outs,
                         ["x", "u", "x_next", "p", "W"], names)
-
-    xN = ca.SX.sym("xN", nx)
-    WN = ca.SX.sym("WN", nyN)
-    rN = ocp.terminal_residual(xN, p)
-    JN = ca.jacobian(rN, xN)
-    WJN = ca.diag(WN) @ JN
-    HN = JN.T @ WJN
-    if regularization > 0:
-        HN = HN + regularization * ca.SX.eye(nx)
-    terminal = ca.Function(f"{ocp.name}_terminal", [xN, p, WN],
-                           [HN, WJN.T @ rN, 0.5 * ca.dot(WN * rN, rN)],
-                           ["xN", "p", "WN"], ["HN", "gN", "costN"])
+    terminal = _gauss_newton_terminal(ocp, regularization)
 
     # -- whole horizon, MX with a mapped stage ---------------------------------------------------
-    w = ca.MX.sym("w", ocp.n_vars)
-    pm = ca.MX.sym("p", npar)
-    Wm = ca.MX.sym("W", ny)
-    WNm = ca.MX.sym("WN", nyN)
-    body = ca.reshape(w[:N * nz], nz, N)
-    Xs, Us = body[:nx, :], body[nx:, :]
-    wN = w[N * nz:]
-    Xnext = ca.horzcat(Xs[:, 1:], wN) if N > 1 else wN
-    res = stage.map(N, "serial")(Xs, Us, Xnext, pm, Wm)
+    m = _horizon_symbols(ocp)
+    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["p"], m["W"])
     Hs, gs, ABs, ndefs, costs = res[:5]
-    HNv, gNv, costN = terminal(wN, pm, WNm)
+    HNv, gNv, costN = terminal(m["wN"], m["p"], m["WN"])
 
     H_full = ca.diagcat(*ca.horzsplit(Hs, nz), HNv)
     g_full = ca.vertcat(ca.vec(gs), gNv)
@@ -345,7 +352,7 @@ def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function
     A_stages = ca.horzcat(ca.diagcat(*blocks), ca.MX(ocp.n_cons, nx))
     A_full = A_stages + ca.MX(_minus_identity_pattern(ocp))
     cost_total = ca.sum2(costs) + costN
-    return ca.Function(f"{ocp.name}_qpdata", [w, pm, Wm, WNm],
+    return ca.Function(f"{ocp.name}_qpdata", [m["w"], m["p"], m["W"], m["WN"]],
                        [H_full, ca.densify(g_full), A_full, ca.densify(lo), ca.densify(hi),
                         ca.densify(cost_total)],
                        ["w", "p", "W", "WN"], ["H", "g", "A", "lba", "uba", "cost"])
@@ -356,46 +363,23 @@ def build_stage_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Fu
     ``(w, p, W, W_N) -> (Q, S, R, q, r, A, B, b, cost)`` as dense per-stage blocks, each output a
     horizontal concatenation of the stages' (column-major) blocks: Q (nx, nx (N+1)) with the
     terminal Hessian last, S (nu, nx N), R (nu, nu N), q (nx, N+1), r (nu, N), dynamics
-    x_{k+1} = A x_k + B u_k + b with A (nx, nx N), B (nx, nu N) and the defect b (nx, N). Same
+    x_{k+1} = A x_k + B u_k + b with A (nx, nx N), B (nx, nu N) and the defect b (nx, N). The same
     Gauss-Newton data as :func:`build_qp_data_function`, laid out as HPIPM's setters take them.
     Path constraints are not supported."""
     if ocp.nh:
         raise ValueError(f"the stage-wise QP data do not support path constraints (OCP {ocp.name!r} has {ocp.nh})")
-    N, nx, nu, npar, ny, nyN = ocp.horizon, ocp.nx, ocp.nu, ocp.np, ocp.ny, ocp.ny_terminal
-    nz = nx + nu
-    x, u, xn = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("x_next", nx)
-    p, W = ca.SX.sym("p", npar), ca.SX.sym("W", ny)
-    z = ca.vertcat(x, u)
-    r = ocp.stage_residual(x, u, p)
-    J = ca.jacobian(r, z)
-    WJ = ca.diag(W) @ J
-    H = J.T @ WJ
-    if regularization > 0:
-        H = H + regularization * ca.SX.eye(nz)
-    g = WJ.T @ r
-    xnext = ocp.dynamics(x, u, p)
-    AB = ca.jacobian(xnext, z)
-    stage = ca.Function(f"{ocp.name}_sstage", [x, u, xn, p, W],
+    N, nx = ocp.horizon, ocp.nx
+    st = _gauss_newton_stage(ocp, regularization)
+    H, g, AB = st["H"], st["g"], st["AB"]
+    stage = ca.Function(f"{ocp.name}_sstage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]],
                         [H[:nx, :nx], H[nx:, :nx], H[nx:, nx:], g[:nx], g[nx:], AB[:, :nx], AB[:, nx:],
-                         xnext - xn, 0.5 * ca.dot(W * r, r)])
-    xN, WN = ca.SX.sym("xN", nx), ca.SX.sym("WN", nyN)
-    rN = ocp.terminal_residual(xN, p)
-    JN = ca.jacobian(rN, xN)
-    WJN = ca.diag(WN) @ JN
-    HN = JN.T @ WJN
-    if regularization > 0:
-        HN = HN + regularization * ca.SX.eye(nx)
-    terminal = ca.Function(f"{ocp.name}_sterminal", [xN, p, WN], [HN, WJN.T @ rN, 0.5 * ca.dot(WN * rN, rN)])
-
-    w, pm, Wm, WNm = ca.MX.sym("w", ocp.n_vars), ca.MX.sym("p", npar), ca.MX.sym("W", ny), ca.MX.sym("WN", nyN)
-    body = ca.reshape(w[:N * nz], nz, N)
-    Xs, Us = body[:nx, :], body[nx:, :]
-    wN = w[N * nz:]
-    Xnext = ca.horzcat(Xs[:, 1:], wN) if N > 1 else wN
-    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(Xs, Us, Xnext, pm, Wm)
-    QN, qN, costN = terminal(wN, pm, WNm)
+                         -st["neg_defect"], st["cost"]])
+    terminal = _gauss_newton_terminal(ocp, regularization)
+    m = _horizon_symbols(ocp)
+    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["p"], m["W"])
+    QN, qN, costN = terminal(m["wN"], m["p"], m["WN"])
     outs = [ca.horzcat(Q, QN), S, R, ca.horzcat(q, qN), rr, A, B, b, ca.sum2(costs) + costN]
-    return ca.Function(f"{ocp.name}_sqpdata", [w, pm, Wm, WNm], [ca.densify(o) for o in outs],
+    return ca.Function(f"{ocp.name}_sqpdata", [m["w"], m["p"], m["W"], m["WN"]], [ca.densify(o) for o in outs],
                        ["w", "p", "W", "WN"], ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"])
 
 

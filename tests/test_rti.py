@@ -68,16 +68,24 @@ def test_sqp_matches_ipopt_with_active_constraints(cache_dir):
     assert rti.cost(p) == pytest.approx(ipopt.last_stats.cost, rel=1e-7)
 
 
-def test_vtnmpc_sqp_matches_ipopt(cache_dir):
-    cfg = VTNMPCConfig(solver=RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100))
+POINT, NORMAL = np.array([1.0, 2.0, 30.0]), np.array([0.0, -1.0, 0.0])
+
+
+def hard_vtnmpc_problem(cfg: VTNMPCConfig):
+    """The VT-NMPC OCP of ``cfg`` from a start 2.7 m, 1.2 m/s and 34 deg of yaw off the pose
+    (rate bounds become active): (ocp, W, W_N, x0, params)."""
     ocp = build_ocp(cfg)
-    W, WN = cfg.weights.stage_vector(), cfg.weights.terminal_vector()
-    point, normal = np.array([1.0, 2.0, 30.0]), np.array([0.0, -1.0, 0.0])
-    x0 = ideal_state(point, normal, cfg.d_ref)
+    x0 = ideal_state(POINT, NORMAL, cfg.d_ref)
     x0[0:3] += [2.0, -1.5, 1.0]
     x0[3:6] = [1.0, -0.5, 0.5]
     x0[6:10] = [0.0, 0.0, np.sin(np.pi / 4 + 0.3), np.cos(np.pi / 4 + 0.3)]  # 34 deg yaw error
-    params = vtnmpc_parameters(x0, point, normal[:2], np.array([0.7, 0.0, 0.0]))
+    params = vtnmpc_parameters(x0, POINT, NORMAL[:2], np.array([0.7, 0.0, 0.0]))
+    return ocp, cfg.weights.stage_vector(), cfg.weights.terminal_vector(), x0, params
+
+
+def test_vtnmpc_sqp_matches_ipopt(cache_dir):
+    cfg = VTNMPCConfig(solver=RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100))
+    ocp, W, WN, x0, params = hard_vtnmpc_problem(cfg)
     rti = RTISolver(ocp, W, WN, cfg.solver)
     rti.solve(x0, params, max_iter=100, tol=1e-8)
     assert rti.last_stats.status == "SUCCESS"
@@ -308,30 +316,21 @@ def test_direct_hpipm_sqp_matches_ipopt_and_the_plugin(cache_dir):
     active (at an active bound the plugin's speed preset stops ~7e-3 short of it, measured)."""
     base = dict(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100)
     cfg = VTNMPCConfig(solver=RTIOptions(qp_solver="hpipm", **base))
-    ocp = build_ocp(cfg)
-    W, WN = cfg.weights.stage_vector(), cfg.weights.terminal_vector()
-    point, normal = np.array([1.0, 2.0, 30.0]), np.array([0.0, -1.0, 0.0])
-    x0 = ideal_state(point, normal, cfg.d_ref)
-    x0[0:3] += [2.0, -1.5, 1.0]
-    x0[3:6] = [1.0, -0.5, 0.5]
-    x0[6:10] = [0.0, 0.0, np.sin(np.pi / 4 + 0.3), np.cos(np.pi / 4 + 0.3)]
-    params = vtnmpc_parameters(x0, point, normal[:2], np.array([0.7, 0.0, 0.0]))
+    ocp, W, WN, x0, params = hard_vtnmpc_problem(cfg)
     rti = RTISolver(ocp, W, WN, cfg.solver)
     assert rti.qp_solver == "hpipm"
     rti.solve(x0, params, max_iter=100, tol=1e-8)
     assert rti.last_stats.status == "SUCCESS"
     ipopt = IpoptOCPSolver(ocp, W, WN, tol=1e-12)
     ipopt.solve(x0, params)
-    xs, us = ocp.unpack(rti.iterate)
-    xs_ip, us_ip = ocp.unpack(ipopt.iterate)
-    np.testing.assert_allclose(xs, xs_ip, atol=2e-6)
-    np.testing.assert_allclose(us, us_ip, atol=1e-4)
+    np.testing.assert_allclose(rti.iterate, ipopt.iterate, atol=1e-4)
     assert rti.cost(params) == pytest.approx(ipopt.last_stats.cost, rel=1e-9)
+    us = ocp.unpack(rti.iterate)[1]
     assert np.any(np.isclose(us, ocp.u_lower, atol=1e-6) | np.isclose(us, ocp.u_upper, atol=1e-6))
     # one step from the stand-off pose (no bound active): the two QP paths agree
-    x1 = ideal_state(point, normal, cfg.d_ref)
+    x1 = ideal_state(POINT, NORMAL, cfg.d_ref)
     x1[0:3] += [0.1, -0.1, 0.05]
-    p1 = vtnmpc_parameters(x1, point, normal[:2], np.array([0.3, 0.0, 0.0]))
+    p1 = vtnmpc_parameters(x1, POINT, NORMAL[:2], np.array([0.3, 0.0, 0.0]))
     steps = []
     for qs in ("hpipm", "casadi"):
         s = RTISolver(ocp, W, WN, RTIOptions(qp_solver=qs, **base))
