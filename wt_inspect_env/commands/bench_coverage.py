@@ -22,6 +22,7 @@ import numpy as np
 
 from ..camera import GimbalCamera
 from ..coverage import OCCLUSION_SAMPLES, CoverageTracker, PyBulletOccluder, TriangleVisibility
+from ..geometry import facing_yaw, horizontal_normal, standoff_position
 from ..metrics import MetricAccumulator
 from ..reference import InspectionReference, ReferenceConfig
 
@@ -38,11 +39,13 @@ def _sweep(turbine, standoff: float, spacing: float):
         radial /= np.linalg.norm(radial)
         r = (cen - turbine.rotor_center) @ radial
         base = cen.mean(axis=0) - ((cen.mean(axis=0) - turbine.rotor_center) @ radial) * radial
-        n_xy = np.array([n[0], n[1], 0.0]) / math.hypot(n[0], n[1])
+        n_xy = horizontal_normal(n)
+        if n_xy is None:   # a face without a horizontal stand-off direction is not swept
+            continue
         for rr in np.arange(r.min(), r.max() + 1e-9, spacing):
             p = base + rr * radial
-            pts.append(p), nrm.append(n), pos.append(p + standoff * n_xy)
-            yaw.append(math.atan2(-n_xy[1], -n_xy[0]))
+            pts.append(p), nrm.append(n), pos.append(standoff_position(p, n_xy, standoff))
+            yaw.append(facing_yaw(n_xy))
     return np.array(pos), np.array(yaw), np.array(pts), np.array(nrm)
 
 
