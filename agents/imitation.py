@@ -131,9 +131,10 @@ def check_dataset_matches(meta: Mapping[str, Any], env) -> None:
 
 
 def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "full",
-                    config: BCConfig | None = None, progress: bool = True) -> dict[str, Any]:
+                    config: BCConfig | None = None, progress: bool = True, evaluate: bool = True) -> dict[str, Any]:
     """Clone the dataset's expert into the recipe's policy; writes ``out/model.*`` and
-    ``out/bc_summary.json`` and returns the summary."""
+    ``out/bc_summary.json`` (and, with ``evaluate``, ``out/evaluations.json``: the clone flown on
+    the recipe's evaluation mission, as training runs record theirs) and returns the summary."""
     import torch
     from stable_baselines3.common.vec_env import VecNormalize
     from tqdm import tqdm
@@ -212,6 +213,17 @@ def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: 
         path = save_agent(model, out / "model", algo="ppo", spec=recipe.spec, vecnormalize=vecnorm,
                           interface=env_interface(raw), extra=extra)
         summary["model"] = str(path)
+        if evaluate:
+            from .policy import load_sb3_policy
+            from .training import EVAL_SEED_BASE, run_episode, summarize_episodes
+            t2 = time.perf_counter()
+            policy = load_sb3_policy("ppo", path, raw)
+            seeds = [EVAL_SEED_BASE + i for i in range(recipe.eval_episodes)]
+            result = summarize_episodes([run_episode(policy, raw, s) for s in seeds])
+            entry = {"env_steps": 0, "wall_time_s": round(prep_s + fit_s, 1),
+                     "eval_time_s": round(time.perf_counter() - t2, 1), **result}
+            write_text_atomic(out / "evaluations.json", json.dumps([entry], indent=1))
+            summary["evaluation"] = {"mean": result["mean"], "score": result["score"]}
         write_text_atomic(out / "bc_summary.json", json.dumps(summary, indent=1))
         venv.close()
     finally:

@@ -86,6 +86,23 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     return doc
 
 
+def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, recipe, task: str = "full",
+                epochs: int = 30, progress: bool = True) -> dict[str, Any]:
+    """Behaviour cloning with each seed (network initialisation, batch order) into ``OUT/seed_<s>/``,
+    each evaluated on the recipe's mission; finished seeds are skipped. Returns ``seeds.json``."""
+    from .imitation import BCConfig, behaviour_clone
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    for s in seeds:
+        run = out / f"seed_{s}"
+        if not (run / "bc_summary.json").is_file():
+            behaviour_clone(dataset, run, recipe=recipe, task=task, config=BCConfig(epochs=epochs, seed=s),
+                            progress=progress)
+    doc = seed_report(out, seeds)
+    write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
+    return doc
+
+
 def _evaluations(run: Path) -> list[dict[str, Any]]:
     p = run / "evaluations.json"
     return json.loads(p.read_text()) if p.is_file() else []

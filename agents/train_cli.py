@@ -106,6 +106,12 @@ def _clone(args, prog: str) -> int:
     from .recipe import load_recipe
     try:
         rec = load_recipe(args.recipe or str(Path(__file__).parent / "recipes" / "bc_full.json"))
+        if args.seeds is not None:
+            from .seeds import clone_seeds, parse_seeds
+            doc = clone_seeds(parse_seeds(args.seeds), args.dataset, args.out, recipe=rec, task=args.task or "full",
+                              epochs=args.bc_epochs, progress=not args.no_progress)
+            print(f"{doc['n_reached']} of {len(doc['seeds'])} seeds reached the target; {args.out}/seeds.json")
+            return 0
         summary = behaviour_clone(args.dataset, args.out, recipe=rec, task=args.task or "full",
                                   config=BCConfig(epochs=args.bc_epochs, seed=args.seed), progress=not args.no_progress)
     except ValueError as exc:
