@@ -95,3 +95,55 @@ def test_every_registered_controller_builds_and_flies_a_step():
             assert not policy.last_stats.fallback, name
     finally:
         env.close()
+
+
+class _Hover:
+    """A third-party policy: hover thrust, zero rates (the interface, nothing else)."""
+
+    def __init__(self, env) -> None:
+        self.action = env.scaling.hover_action()
+
+    def reset(self, seed=None) -> None:
+        pass
+
+    def act(self, obs):
+        return self.action
+
+
+def _hover_entry():
+    from wt_inspect_env.policy import PolicyEntry
+    return PolicyEntry(_Hover, "hover in place (a third-party registration in a test)", display_name="Hover")
+
+
+HOVER_ENTRY = _hover_entry()
+
+
+@pytest.fixture
+def patched_registry(monkeypatch):
+    """The registry with extra entry points (as another installed package would add them)."""
+    from wt_inspect.evaluation import registry
+    real = registry.entry_points
+    extra: list = []
+    monkeypatch.setattr(registry, "entry_points", lambda group: list(real(group=group)) + extra)
+    registry._entry_points.cache_clear()
+    registry._load.cache_clear()
+    yield registry, extra
+    registry._entry_points.cache_clear()
+    registry._load.cache_clear()
+
+
+def test_a_third_party_controller_plugs_in_through_an_entry_point(patched_registry):
+    from importlib.metadata import EntryPoint
+
+    from wt_inspect.evaluation import evaluate_policy
+    from wt_inspect_env.policy import ENTRY_POINT_GROUP
+    registry, extra = patched_registry
+    extra.append(EntryPoint("hover-test", "test_layout:HOVER_ENTRY", ENTRY_POINT_GROUP))
+    res = evaluate_policy("hover-test", scenario="surface", wind=0.0, max_time=0.2)
+    assert res.steps == 20 and res.spec.controller_id == "hover-test"
+    assert registry.display_name("hover-test") == "Hover" and "hover-test" in registry.valid_names()
+    # a name claimed by two packages with different targets is refused, naming both
+    extra.append(EntryPoint("vtnmpc", "test_layout:HOVER_ENTRY", ENTRY_POINT_GROUP))
+    registry._entry_points.cache_clear()
+    with pytest.raises(ValueError, match="registered twice"):
+        registry.check_controller("vtnmpc")

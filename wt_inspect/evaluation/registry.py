@@ -31,7 +31,15 @@ PolicyFactory = Callable[[Any], Any]
 
 @functools.cache
 def _entry_points() -> dict[str, EntryPoint]:
-    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+    """Registered names; the same name from two packages with different targets is an error
+    (the same target seen twice - an editable install's two metadata copies - is not)."""
+    found: dict[str, EntryPoint] = {}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        other = found.setdefault(ep.name, ep)
+        if other.value != ep.value:
+            raise ValueError(f"controller name {ep.name!r} is registered twice in entry-point group "
+                             f"{ENTRY_POINT_GROUP!r}: {other.value} and {ep.value}")
+    return found
 
 
 @functools.cache
