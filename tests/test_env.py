@@ -14,9 +14,19 @@ def make(env_id="WindTurbineInspection-Surface-v0", **kw):
 
 
 @pytest.mark.parametrize("env_id", list(ENV_IDS))
-def test_check_env(env_id):
+def test_check_env(env_id, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)      # headless, as CI: check_env with its defaults
     env = make(env_id)
-    check_env(env.unwrapped, skip_render_check=True)
+    assert env.unwrapped.metadata["render_modes"] == ["rgb_array"]
+    check_env(env.unwrapped)
+    env.close()
+    with pytest.raises(ValueError, match="needs a display"):
+        make(env_id, render_mode="human")
+
+
+def test_render_fps_is_the_control_rate_so_videos_play_in_real_time():
+    env = make(ctrl_hz=50.0, physics_hz=400.0)
+    assert env.unwrapped.metadata["render_fps"] == 50.0
     env.close()
 
 

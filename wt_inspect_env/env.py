@@ -44,6 +44,12 @@ def _box(shape: tuple[int, ...], lo: float = -np.inf, hi: float = np.inf) -> spa
     return spaces.Box(low=lo, high=hi, shape=shape, dtype=np.float32)
 
 
+def _display_available() -> bool:
+    import os
+    import sys
+    return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY"))
+
+
 def observation_space() -> spaces.Dict:
     """The Dict observation space of one drone (see :mod:`~wt_inspect_env.spaces`)."""
     bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
@@ -54,14 +60,20 @@ def observation_space() -> spaces.Dict:
 class WindTurbineInspectionEnv(gym.Env):
     """Quadrotor wind-turbine inspection (see the module docstring and :class:`EnvConfig`)."""
 
-    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 10}
+    metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 100}
 
     def __init__(self, render_mode: str | None = None, **options: Any) -> None:
         super().__init__()
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {self.metadata['render_modes']}")
+        # Per instance: "human" only where a GUI can open (so headless checkers do not ask for it),
+        # and render_fps = the control rate, since render() shows every control step - a video
+        # recorder then plays 1 s of flight in 1 s.
+        modes = ["rgb_array"] + (["human"] if _display_available() else [])
+        if render_mode is not None and render_mode not in modes:
+            raise ValueError(f"unknown render_mode {render_mode!r}; valid: {modes}"
+                             + ("" if render_mode != "human" else " ('human' needs a display: DISPLAY is not set)"))
         self.render_mode = render_mode
         self.config = cfg = EnvConfig.from_kwargs(**options)
+        self.metadata = {**type(self).metadata, "render_modes": modes, "render_fps": cfg.ctrl_hz}
         self.params = cfg.drone
         self.scaling = ActionScaling.from_params(self.params)
         self.dt = 1.0 / cfg.ctrl_hz
