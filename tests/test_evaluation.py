@@ -226,7 +226,7 @@ def test_sb3_hook(tmp_path, monkeypatch):
     calls = []
 
     def load_sb3_policy(algo, path, env):
-        calls.append((algo, path))
+        calls.append((algo, str(path)))   # a str or a resolved Path
         return HoverPolicy(env)
     monkeypatch.setitem(sys.modules, "agents.policy", types.SimpleNamespace(load_sb3_policy=load_sb3_policy))
     res = evaluate_policy(f"sac:{model}", scenario="surface", max_time=0.2)
@@ -236,7 +236,7 @@ def test_sb3_hook(tmp_path, monkeypatch):
     k1 = key()
     model.write_bytes(b"retrained")
     assert key() != k1
-    with pytest.raises(ValueError, match="does not exist"):
+    with pytest.raises(ValueError, match="neither a file nor a shipped model"):
         registry.check_controller(f"ppo:{tmp_path / 'missing.zip'}")
     with pytest.raises(ValueError, match="'dqn2' is not a registered name taking an argument"):
         registry.check_controller("dqn2:x.zip")
