@@ -192,3 +192,25 @@ def offset_start(scenario: SurfacePass, d_ref: float, offset: Sequence[float] = 
     yaw = 2 * np.arctan2(x[8], x[9]) + np.deg2rad(yaw_error_deg)
     x[6:10] = [0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)]
     return x
+
+
+def run_in_simulator(policy: Any, params: QuadrotorParams, scenario: SurfacePass, x0: np.ndarray,
+                     steps: int) -> tuple[np.ndarray, np.ndarray, list[Any], np.ndarray]:
+    """Closed loop through the PyBullet simulator (rate loop, motor lag, drag; no wind), with the
+    simulator's body rates in the observation: (distances, headings, per-step stats, final state)."""
+    from wt_inspect_env.sim import QuadrotorSim, SimConfig
+    dists, heads, stats = [], [], []
+    with QuadrotorSim(params, SimConfig()) as sim:
+        sim.reset(x0)
+        policy.reset()
+        for k in range(steps):
+            t = k * sim.dt
+            obs = make_observation(sim.state, scenario.point(t), np.asarray(scenario.normal), scenario.velocity(t))
+            obs["body_rates"] = sim.body_rates.astype(np.float32)
+            sim.step(policy.scaling.to_command(policy.act(obs)))
+            stats.append(policy.last_stats)
+            d, h = inspection_geometry(sim.state, scenario.point(t + sim.dt), scenario.normal)
+            dists.append(d)
+            heads.append(h)
+        final = sim.state
+    return np.array(dists), np.array(heads), stats, final

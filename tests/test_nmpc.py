@@ -9,13 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from closed_loop import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
-                               offset_start, run_closed_loop)
+from closed_loop import (ModelPlant, SurfacePass, make_observation, offset_start, run_closed_loop,
+                         run_in_simulator)
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, residual_functions
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import TrackingReference, standoff_reference
 from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.sim import QuadrotorSim, SimConfig
 
 D_REF = 7.0
 
@@ -25,31 +24,10 @@ def policy():
     return NMPCPolicy()
 
 
-def run_in_sim(policy, params, scenario: SurfacePass, x0: np.ndarray, steps: int):
-    """Closed loop through the PyBullet simulator (rate loop, motor lag, drag; no wind)."""
-    dists, heads, stats = [], [], []
-    with QuadrotorSim(params, SimConfig()) as sim:
-        sim.reset(x0)
-        policy.reset()
-        for k in range(steps):
-            t = k * sim.dt
-            x = sim.state
-            obs = make_observation(x, scenario.point(t), np.asarray(scenario.normal),
-                                   scenario.velocity(t))
-            obs["body_rates"] = sim.body_rates.astype(np.float32)
-            sim.step(policy.scaling.to_command(policy.act(obs)))
-            stats.append(policy.last_stats)
-            d, h = inspection_geometry(sim.state, scenario.point(t + sim.dt), scenario.normal)
-            dists.append(d)
-            heads.append(h)
-        final = sim.state
-    return np.array(dists), np.array(heads), stats, final
-
-
 def test_holds_standoff_pose_in_simulator(policy, params):
     scenario = SurfacePass(speed=0.0, normal=(0.6, -0.8, 0.0), direction=(0.8, 0.6, 0.0))
     x0 = offset_start(scenario, D_REF, offset=(0.3, -0.3, 0.2), yaw_error_deg=8.0)
-    dists, heads, stats, final = run_in_sim(policy, params, scenario, x0, steps=400)
+    dists, heads, stats, final = run_in_simulator(policy, params, scenario, x0, steps=400)
     assert all(s.status == "SUCCESS" and not s.fallback and s.solve_ms > 0 for s in stats)
     assert np.all(heads[100:] > 0.99)
     assert np.all(np.abs(dists[200:] - D_REF) < 0.1)
