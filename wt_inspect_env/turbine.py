@@ -117,8 +117,9 @@ def _grid_triangles(P: np.ndarray, outward: np.ndarray) -> np.ndarray:
 
 
 def _cylinder(base: np.ndarray, axis: np.ndarray, radius: float, length: float,
-              ring_step: float, sections: int = CYLINDER_SECTIONS) -> np.ndarray:
-    """Closed cylinder (side in rings of at most ``ring_step``, fan caps), outward wound triangles."""
+              ring_step: float, sections: int = CYLINDER_SECTIONS, top_radius: float | None = None) -> np.ndarray:
+    """Closed cylinder, or frustum tapering to ``top_radius`` (side in rings of at most
+    ``ring_step``, fan caps), outward wound triangles."""
     axis = axis / np.linalg.norm(axis)
     e1 = np.cross(axis, [0.0, 0.0, 1.0]) if abs(axis[2]) < 0.9 else np.cross(axis, [1.0, 0.0, 0.0])
     e1 /= np.linalg.norm(e1)
@@ -126,8 +127,10 @@ def _cylinder(base: np.ndarray, axis: np.ndarray, radius: float, length: float,
     n_rings = max(1, math.ceil(length / ring_step))
     h = np.linspace(0.0, length, n_rings + 1)
     ang = 2.0 * np.pi * (np.arange(sections + 1) % sections) / sections
-    ring = radius * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)       # (S+1, 3)
-    P = base + h[:, None, None] * axis + ring[None]                                 # (R+1, S+1, 3)
+    ring = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2                   # (S+1, 3) unit
+    r_top = radius if top_radius is None else top_radius
+    rad = radius + (r_top - radius) * h / length                                    # (R+1,)
+    P = base + h[:, None, None] * axis + rad[:, None, None] * ring[None]            # (R+1, S+1, 3)
     # _grid_triangles decides the winding from the first cell, whose outward direction is ring[0]
     # turned by half a section: close enough, and the side grid is uniformly wound.
     side = _grid_triangles(P, outward=ring[0])
@@ -160,31 +163,68 @@ def _soup_to_trimesh(tris: np.ndarray) -> trimesh.Trimesh:
 class TurbineSpec:
     """Dimensions and placement of the turbine (SI units, angles in degrees as the names say).
 
-    ``None`` defaults are derived from the others and stored resolved after validation:
-    ``blade_thickness = blade_width / 3`` (the paper), ``hub_radius = 0.7 blade_width`` (2.1 m for
-    the V100; must exceed ``blade_width / (2 sqrt 3)`` or neighbouring blade roots would
-    intersect), ``overhang = tower_radius + hub_radius`` (horizontal distance tower axis -> rotor
-    plane; must exceed ``tower_radius + blade_thickness / 2`` so a blade pointing down clears the
-    tower).
+    ``preset`` (e.g. ``"nrel-5mw"``, see :mod:`.turbine_presets`) fills every field left ``None``;
+    the rest of the ``None`` defaults are the paper's V100 or derived from the others, all stored
+    resolved after validation: ``tower_height`` 120, ``blade_length`` 50, ``blade_width`` 3,
+    ``tower_radius`` 1.5 (``tower_top_radius`` = ``tower_radius``: a cylinder; smaller: a tapered
+    tower), ``blade_thickness = blade_width / 3`` (the paper), ``hub_radius = 0.7 blade_width``
+    (2.1 m for the V100; must exceed ``blade_width / (2 sqrt 3)`` or neighbouring blade roots
+    would intersect), ``overhang = tower_radius + hub_radius`` (horizontal distance tower axis ->
+    rotor plane; must exceed ``tower_radius + blade_thickness / 2`` so a blade pointing down clears
+    the tower). ``nacelle_radius`` / ``nacelle_length``: a cylindrical nacelle running back from
+    the tower axis along the rotor axis (an obstacle; none by default).
+
+    ``blade``: ``None`` for the paper's cuboid blade, or a :class:`~.blade_geometry.BladeShape`
+    (or dict: span, chord, twist_deg, thickness, pitch_axis) for a parametric blade starting at
+    ``hub_radius``; ``blade_length`` (if given) scales it geometrically, and ``blade_width`` /
+    ``blade_thickness`` follow its largest chord and thickness (values given for them are replaced).
     """
 
-    tower_height: float = 120.0
-    blade_length: float = 50.0
-    blade_width: float = 3.0
+    tower_height: float | None = None
+    blade_length: float | None = None
+    blade_width: float | None = None
     blade_thickness: float | None = None
     position: tuple[float, float] = (0.0, 0.0)
     rotor_azimuth_deg: float = 0.0
     facing_deg: float = 90.0
     hub_radius: float | None = None
     overhang: float | None = None
-    tower_radius: float = 1.5
+    tower_radius: float | None = None
     mesh_step: float = 1.5
+    tower_top_radius: float | None = None
+    nacelle_radius: float | None = None
+    nacelle_length: float | None = None
+    blade: Any = None
+    preset: str | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
+        if self.preset is not None:
+            from .turbine_presets import get_turbine_preset
+            for k, v in get_turbine_preset(self.preset).items():
+                if getattr(self, k) is None:
+                    put(k, v)
+        for k, v in (("tower_height", 120.0), ("tower_radius", 1.5)):
+            if getattr(self, k) is None:
+                put(k, v)
         put("tower_height", check_positive("tower_height", self.tower_height))
+        shape = None
+        if self.blade is not None:
+            from .blade_geometry import BladeShape
+            shape = BladeShape.from_value(self.blade)
+            if self.blade_length is not None:
+                check_positive("blade_length", self.blade_length)
+                if abs(self.blade_length - shape.length) > 1e-9 * shape.length:
+                    shape = shape.scaled(self.blade_length)
+            put("blade", shape)
+            put("blade_length", shape.length)
+            put("blade_width", shape.max_chord)
+            put("blade_thickness", shape.max_thickness)
+        for k, v in (("blade_length", 50.0), ("blade_width", 3.0)):
+            if getattr(self, k) is None:
+                put(k, v)
         put("blade_length", check_positive("blade_length", self.blade_length))
         put("blade_width", check_positive("blade_width", self.blade_width))
         if self.blade_width >= self.blade_length:
@@ -201,6 +241,17 @@ class TurbineSpec:
         put("rotor_azimuth_deg", check_finite("rotor_azimuth_deg", self.rotor_azimuth_deg))
         put("facing_deg", check_finite("facing_deg", self.facing_deg))
         put("tower_radius", check_positive("tower_radius", self.tower_radius))
+        top = self.tower_radius if self.tower_top_radius is None else \
+            check_positive("tower_top_radius", self.tower_top_radius)
+        if top > self.tower_radius:
+            raise ValueError(f"tower_top_radius must not exceed tower_radius ({self.tower_radius!r}), got {top!r}")
+        put("tower_top_radius", top)
+        if (self.nacelle_radius is None) != (self.nacelle_length is None):
+            raise ValueError(f"give nacelle_radius and nacelle_length together, got {self.nacelle_radius!r} "
+                             f"and {self.nacelle_length!r}")
+        if self.nacelle_radius is not None:
+            put("nacelle_radius", check_positive("nacelle_radius", self.nacelle_radius))
+            put("nacelle_length", check_positive("nacelle_length", self.nacelle_length))
         min_hub = self.blade_width / (2.0 * math.sqrt(3.0))
         hub = 0.7 * self.blade_width if self.hub_radius is None else \
             check_positive("hub_radius", self.hub_radius)
@@ -208,12 +259,13 @@ class TurbineSpec:
             raise ValueError(f"hub_radius must exceed blade_width/(2*sqrt(3)) = {min_hub:.4g} m, or "
                              f"neighbouring blade roots intersect; got {self.hub_radius!r}")
         put("hub_radius", hub)
-        min_over = self.tower_radius + t / 2.0
+        min_over = self._min_overhang()
         over = self.tower_radius + hub if self.overhang is None else \
             check_positive("overhang", self.overhang)
         if over <= min_over:
             raise ValueError(f"overhang must exceed tower_radius + blade_thickness/2 = {min_over:.4g} m "
-                             f"so that a blade pointing down clears the tower; got {self.overhang!r}")
+                             f"(at the height the blade passes, for a tapered tower) so that a blade "
+                             f"pointing down clears the tower; got {self.overhang!r}")
         put("overhang", over)
         put("mesh_step", check_positive("mesh_step", self.mesh_step))
         if self.tip_radius >= self.tower_height:
@@ -224,6 +276,33 @@ class TurbineSpec:
         if n_tri > MAX_TRIANGLES:
             raise ValueError(f"mesh_step {self.mesh_step!r} would make {n_tri:,} triangles "
                              f"(limit {MAX_TRIANGLES:,}); use a larger step")
+
+    def _min_overhang(self) -> float:
+        """Smallest overhang at which a blade pointing straight down misses the tower: the largest
+        tower radius at a blade station's height plus that station's half extent along the axis."""
+        def tower_r(z: np.ndarray) -> np.ndarray:
+            return self.tower_radius + (self.tower_top_radius - self.tower_radius) * np.clip(z / self.tower_height, 0, 1)
+
+        hub = 0.7 * self.blade_width if self.hub_radius is None else self.hub_radius
+        if self.blade is None:
+            return float(tower_r(np.array(self.tower_height - hub)) + self.blade_thickness / 2.0)
+        b = self.blade
+        r = hub + np.asarray(b.span) - b.span[0]
+        th = np.radians(np.abs(np.asarray(b.twist_deg)))
+        c, tc = np.asarray(b.chord), np.asarray(b.thickness)
+        half = 0.5 * c * tc * np.cos(th) + c * max(b.pitch_axis, 0.5) * np.sin(th)
+        return float(np.max(tower_r(self.tower_height - r) + half))
+
+    @property
+    def blade_shape(self) -> Any:
+        """The parametric blade placed on this rotor (span re-based to start at ``hub_radius``),
+        ``None`` for the cuboid."""
+        if self.blade is None:
+            return None
+        from .blade_geometry import BladeShape
+        b = self.blade
+        return BladeShape(tuple(self.hub_radius + x - b.span[0] for x in b.span), b.chord, b.twist_deg,
+                          b.thickness, b.pitch_axis)
 
     @classmethod
     def from_options(cls, options: Mapping[str, Any]) -> "TurbineSpec":
@@ -254,14 +333,23 @@ class TurbineSpec:
         return (math.ceil(self.blade_length / s - 1e-9), math.ceil(self.blade_width / s - 1e-9),
                 math.ceil(self.blade_thickness / s - 1e-9))
 
+    def _shape_grid(self) -> tuple[int, int]:
+        from .blade_geometry import blade_grid_size
+        return blade_grid_size(self.blade_shape, self.mesh_step)
+
     @property
     def n_blade_triangles(self) -> int:
-        """Inspected triangles (four long faces of the three blades)."""
+        """Inspected triangles (four long faces, or the whole aerofoil surface, of the three blades)."""
+        if self.blade is not None:
+            rings, contour = self._shape_grid()
+            return N_BLADES * 2 * (rings - 1) * contour
         nu, nv, nt = self.grid
         return N_BLADES * 2 * nu * (2 * nv + 2 * nt)
 
     @property
     def n_cap_triangles(self) -> int:
+        if self.blade is not None:
+            return N_BLADES * 2 * self._shape_grid()[1]
         nu, nv, nt = self.grid
         return N_BLADES * 2 * 2 * nv * nt
 
@@ -393,7 +481,7 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
     up = np.array([0.0, 0.0, 1.0])
 
     blades, b_lab, f_lab, caps, c_lab = [], [], [], [], []
-    for k in range(N_BLADES):
+    for k in range(N_BLADES if spec.blade is None else 0):
         radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
         chord = np.cross(axis, radial)
 
@@ -419,18 +507,72 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
             caps.append(tris)
             c_lab.append(np.full(len(tris), k))
 
+    if spec.blade is not None:
+        for k in range(N_BLADES):
+            radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
+            tris, faces, cap = _shaped_blade(spec, center, axis, radial)
+            blades.append(tris)
+            b_lab.append(np.full(len(tris), k))
+            f_lab.append(faces)
+            caps.append(cap)
+            c_lab.append(np.full(len(cap), k))
+
     base = np.array([spec.position[0], spec.position[1], 0.0])
     tower = _cylinder(base, up, spec.tower_radius, spec.tower_height,
-                      ring_step=max(2.0 * spec.mesh_step, spec.tower_height / 200.0))
+                      ring_step=max(2.0 * spec.mesh_step, spec.tower_height / 200.0),
+                      top_radius=spec.tower_top_radius)
     hub_len = spec.overhang + t / 2.0 + 0.5 * r0
     hub = _cylinder(center - spec.overhang * axis, axis, r0, hub_len, ring_step=spec.mesh_step)
+    obstacles = [tower, hub]
+    if spec.nacelle_radius is not None:
+        obstacles.append(_cylinder(center - spec.overhang * axis, -axis, spec.nacelle_radius, spec.nacelle_length,
+                                   ring_step=spec.mesh_step))
     blade_faces = np.concatenate(blades)
     b_lab_a, f_lab_a = np.concatenate(b_lab), np.concatenate(f_lab)
     return TurbineMesh(
         blade_vertices=blade_faces, triangle_blade=b_lab_a, triangle_face=f_lab_a,
         triangle_surface=4 * b_lab_a + f_lab_a, cap_vertices=np.concatenate(caps),
-        cap_blade=np.concatenate(c_lab), obstacle_mesh=_soup_to_trimesh(np.concatenate([tower, hub])),
+        cap_blade=np.concatenate(c_lab), obstacle_mesh=_soup_to_trimesh(np.concatenate(obstacles)),
         rotor_center=center, rotor_axis=axis, spec=spec)
+
+
+def _shaped_blade(spec: TurbineSpec, center: np.ndarray, axis: np.ndarray,
+                  radial: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Triangles of one parametric blade (rings of section contours, see :mod:`.blade_geometry`),
+    their face labels and the root and tip caps.
+
+    Face labels follow the cuboid's meaning, from the design (not from the mesh): each triangle's
+    normal, taken in its station's twisted section frame, is 0 (suction side, within 45 deg of the
+    frame's +axis), 1 (pressure side, -axis), 2 (leading edge, +chord) or 3 (trailing edge) -
+    what the clustering must find without them.
+    """
+    from .blade_geometry import blade_grid
+    shape = spec.blade_shape
+    P, radii = blade_grid(shape, center, axis, radial, spec.mesh_step)
+    closed = np.concatenate([P, P[:, :1]], axis=1)                     # (R, C+1, 3): contour loop closed
+    mid = 0.5 * (closed[0, 0] + closed[0, 1])
+    outward = mid - (center + radii[0] * radial)
+    tris = _grid_triangles(closed, outward=outward - (outward @ radial) * radial)
+    # labels from the design: the normal in the (chord, thickness) frame twisted at its station
+    normals, _ = triangle_normals_areas(tris)
+    r = (tris.mean(axis=1) - center) @ radial
+    _, tw, _ = shape.at(r)
+    th = np.radians(tw)
+    chord_dir = np.cross(axis, radial)
+    le = np.cos(th)[:, None] * chord_dir + np.sin(th)[:, None] * axis
+    upn = -np.sin(th)[:, None] * chord_dir + np.cos(th)[:, None] * axis
+    phi = np.degrees(np.arctan2(np.einsum("ij,ij->i", normals, upn), np.einsum("ij,ij->i", normals, le)))
+    faces = np.select([np.abs(phi) <= 45.0, phi > 135.0, phi < -135.0, phi > 0], [2, 3, 3, 0], default=1)
+    caps = []
+    for ring, out in ((P[0], -radial), (P[-1], radial)):
+        c = ring.mean(axis=0)
+        nxt = np.roll(ring, -1, axis=0)
+        fan = np.stack([np.broadcast_to(c, ring.shape), ring, nxt], axis=1)
+        n, _ = triangle_normals_areas(fan[:1])
+        if float(n[0] @ out) < 0:
+            fan = fan[:, [0, 2, 1]]
+        caps.append(fan)
+    return tris, faces.astype(np.int64), np.concatenate(caps)
 
 
 # --------------------------------------------------------------------------- loading

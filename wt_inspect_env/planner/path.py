@@ -3,7 +3,9 @@
 A path is a list of :class:`Piece` s, each a dense table of inspection point ``p``, outward unit
 normal ``n`` and stand-off position ``q`` (``q = p + d_ref * offset_direction(n)``):
 
-* ``surface``: the centre line of one surface from its entry end to its exit end, constant normal.
+* ``surface``: the centre line of one surface from its entry end to its exit end: a straight line
+  with a constant normal on a flat face, a polyline whose normals turn with the blade's twist on
+  a curved one (interpolated between the nodes, renormalised).
 * ``wrap``: from the end of one face round the blade edge to the same end of the adjacent face of
   the same blade. The point slides on the blade (across face A to the shared edge, then across
   face B to its centre line) while the normal turns along the great circle from ``n_A`` to
@@ -93,11 +95,12 @@ class Piece:
         return float(np.linalg.norm(np.diff(self.q, axis=0), axis=1).sum())
 
 
-def surface_piece(surface_id: int, a: np.ndarray, b: np.ndarray, normal: np.ndarray, phase: int,
+def surface_piece(surface_id: int, nodes: np.ndarray, normals: np.ndarray, phase: int,
                   standoff: float, mode: str) -> Piece:
-    """Straight inspection of a centre line from end ``a`` to end ``b`` at constant ``normal``."""
-    p = np.stack([a, b])
-    n = np.repeat(normal[None], 2, axis=0)
+    """Inspection of a centre line through ``nodes`` (in flight order) with the normal given at
+    each node (constant on a flat face; turning with the twist on a parametric blade)."""
+    p = np.asarray(nodes, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
     return Piece("surface", surface_id, phase, p, n, p + standoff * offset_direction(n, mode))
 
 
