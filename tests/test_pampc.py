@@ -158,17 +158,6 @@ def test_perception_term_turns_the_camera_towards_the_point(params):
     assert abs(headings["blind"][-1] - headings["blind"][0]) < 2e-3
 
 
-def test_tracks_a_moving_point(policy, params):
-    scenario = SurfacePass(speed=0.7)
-    res = run_closed_loop(policy, ModelPlant(params), scenario, 500,
-                          scenario.ideal_state(0.0, D_REF), policy.scaling)
-    assert res.fallbacks == 0
-    assert np.all(np.abs(res.distance - D_REF) < 0.05)
-    assert np.all(res.heading > 0.99)
-    lag = scenario.point(5.0)[0] - res.states[-1][0]
-    assert 0.0 < lag < 0.3
-
-
 def test_rti_sqp_matches_ipopt(params):
     cfg = PAMPCConfig(params=params, horizon=15)
     ocp = build_ocp(cfg)

@@ -97,6 +97,20 @@ def test_quaternion_sign_is_aligned_for_every_controller():
         np.testing.assert_allclose(a.act(obs), b.act(flipped), atol=1e-9)
 
 
+@pytest.mark.parametrize("cls, min_heading", [(NMPCPolicy, 0.999), (PAMPCPolicy, 0.99)])
+def test_tracking_baselines_follow_a_moving_point(cls, min_heading, params):
+    """0.7 m/s along the surface (the paper's speed) on the model with drag: the clock state moves
+    the reference over the horizon, so only the unmodelled drag leaves a small lag."""
+    scenario = SurfacePass(speed=0.7)
+    policy = cls(params=params)
+    res = run_closed_loop(policy, ModelPlant(params), scenario, 500, scenario.ideal_state(0.0, 7.0), policy.scaling)
+    assert res.fallbacks == 0
+    assert np.all(np.abs(res.distance - 7.0) < 0.05)
+    assert np.all(res.heading > min_heading)
+    lag = scenario.point(5.0)[0] - res.states[-1][0]
+    assert 0.0 < lag < 0.3
+
+
 def test_set_weights_rebuilds_ipopt():
     policy = NMPCPolicy(backend="ipopt")
     sc = SurfacePass()
