@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..turbine import TurbineMesh, area_moments, components, touching_pairs
+from .clearance import closest_points_on_triangles
 
 
 @dataclass(frozen=True, eq=False)
@@ -143,7 +144,11 @@ def describe_surface(turbine: TurbineMesh, triangles: np.ndarray, surface_id: in
         nj = normals[j]
         denom = float(n_b @ nj)
         h = float((cent[j] - c_b) @ nj) / denom if abs(denom) > 1e-6 else float((cent[j] - c_b) @ n_b)
-        pts.append(c_b + h * n_b)
+        x = c_b + h * n_b
+        # snap onto the surface: the closest point of the bin's triangles
+        tb = tris[k]
+        cp = closest_points_on_triangles(np.repeat(x[None], len(k), axis=0), tb[:, 0], tb[:, 1], tb[:, 2])
+        pts.append(cp[np.argmin(np.linalg.norm(cp - x, axis=1))])
         nrm.append(n_b)
     line, line_n = np.array(pts), np.array(nrm)
     return Surface(id=surface_id, triangles=idx, blade=int(blade), normal=n, root=line[0], tip=line[-1],
