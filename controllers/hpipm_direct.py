@@ -81,6 +81,7 @@ extern hsize d_ocp_qp_ipm_arg_memsize(void *dim);
 extern void d_ocp_qp_ipm_arg_create(void *dim, void *arg, void *mem);
 extern void d_ocp_qp_ipm_arg_set_default(int mode, void *arg);
 extern void d_ocp_qp_ipm_arg_set_iter_max(int *v, void *arg);
+extern void d_ocp_qp_ipm_arg_set_mu0(double *v, void *arg);
 extern void d_ocp_qp_ipm_arg_set_tol_stat(double *v, void *arg);
 extern void d_ocp_qp_ipm_arg_set_tol_eq(double *v, void *arg);
 extern void d_ocp_qp_ipm_arg_set_tol_ineq(double *v, void *arg);
@@ -113,9 +114,9 @@ void vtqp_free(vtqp *h) {
 }
 
 /* Stage 0 has no state (x_0 eliminated), stages 1..N have nx states; nu inputs bounded at every
-   stage 0..N-1; nbx states bounded at stages 1..N (indices idxbx). */
+   stage 0..N-1; nbx states bounded at stages 1..N (indices idxbx). mu0 <= 0 keeps the preset's. */
 vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, int iter_max,
-                  double tol) {
+                  double tol, double mu0) {
     int k;
     vtqp *h = (vtqp *) zalloc(sizeof(vtqp));
     h->N = N; h->nx = nx; h->nu = nu; h->nbx = nbx;
@@ -145,6 +146,7 @@ vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, in
     d_ocp_qp_ipm_arg_set_tol_eq(&tol, h->arg);
     d_ocp_qp_ipm_arg_set_tol_ineq(&tol, h->arg);
     d_ocp_qp_ipm_arg_set_tol_comp(&tol, h->arg);
+    if (mu0 > 0) d_ocp_qp_ipm_arg_set_mu0(&mu0, h->arg);   /* else the mode's preset */
     h->ws = zalloc(d_ocp_qp_ipm_ws_strsize());
     h->mem[4] = zalloc(d_ocp_qp_ipm_ws_memsize(h->dim, h->arg));
     d_ocp_qp_ipm_ws_create(h->dim, h->arg, h->ws, h->mem[4]);
@@ -264,13 +266,15 @@ class HpipmQP:
     _lib: ctypes.CDLL | None = None
 
     def __init__(self, N: int, nx: int, nu: int, idxbx: np.ndarray, mode: str = "speed_abs",
-                 iter_max: int = 50, tol: float = 1e-6, cache_dir: str | os.PathLike | None = None) -> None:
+                 iter_max: int = 50, tol: float = 1e-6, mu0: float | None = None,
+                 cache_dir: str | os.PathLike | None = None) -> None:
         lib = self._load_lib(cache_dir)
         self._lib = lib
         self.N, self.nx, self.nu = int(N), int(nx), int(nu)
         self.idxbx = np.ascontiguousarray(idxbx, dtype=np.int32)
         self._handle = lib.vtqp_create(self.N, self.nx, self.nu, int(self.idxbx.size),
-                                       self.idxbx.ctypes.data, HPIPM_MODES[mode], int(iter_max), float(tol))
+                                       self.idxbx.ctypes.data, HPIPM_MODES[mode], int(iter_max), float(tol),
+                                       -1.0 if mu0 is None else float(mu0))
         if not self._handle:
             raise RuntimeError("HPIPM shim: allocation failed")
         self._stats = np.zeros(2, dtype=np.int32)
@@ -283,7 +287,7 @@ class HpipmQP:
             vp, ip, dp = ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p
             lib.vtqp_create.restype = vp
             lib.vtqp_create.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ip,
-                                        ctypes.c_int, ctypes.c_int, ctypes.c_double]
+                                        ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double]
             lib.vtqp_load.restype = None
             lib.vtqp_load.argtypes = [vp] + [dp] * 12
             lib.vtqp_feedback.restype = None

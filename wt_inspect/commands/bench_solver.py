@@ -19,7 +19,8 @@ Solvers (all N = 30, as registered): ``rti_compiled`` (VT-NMPC, QP data from gen
 compiled C, HPIPM), ``rti_ahead`` (the same with ``prepare_ahead``: the next step's QP is prepared
 at the predicted state after the command is returned, so the latency is the feedback QP alone),
 ``rti_hpipm`` / ``rti_hpipm_ahead`` (the same two with HPIPM called directly,
-:mod:`controllers.hpipm_direct`, instead of through CasADi's plugin), ``rti_uncompiled`` (the same, QP data by CasADi's virtual machine), ``ipopt``
+:mod:`controllers.hpipm_direct`, instead of through CasADi's plugin, and ``qp_mu0=1``),
+``rti_uncompiled`` (the same, QP data by CasADi's virtual machine), ``ipopt``
 (the VT-NMPC OCP solved to convergence every step, warm-started), ``vtnmpc_plus`` (VT-NMPC+, the
 observer inside the timed step), ``nmpc`` and ``pampc`` (the paper's baselines, compiled RTI with
 their own stage lengths), so the paper's ordering of cost per step (NMPC < VT-NMPC < PAMPC) is
@@ -58,8 +59,9 @@ def _vtnmpc_variant(**options: Any) -> Callable[[Any], Any]:
 
 
 def _direct_hpipm() -> Any:
+    """HPIPM called directly, with acados' initial barrier parameter (2 IPM iterations, not 3)."""
     from controllers.rti import RTIOptions
-    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm")
+    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0)
 
 
 def _uncompiled(env: Any) -> Any:
