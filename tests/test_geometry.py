@@ -67,3 +67,14 @@ def test_hover_thrust_and_drag_have_one_definition():
     expected = -(np.array(p.rotor_drag) * v + 0.5 * AIR_DENSITY * np.array(p.body_drag_area) * np.linalg.norm(v) * v)
     np.testing.assert_allclose(drag_force(p, v), expected, rtol=1e-12)
     np.testing.assert_array_equal(drag_force(p, np.zeros(3)), np.zeros(3))
+
+
+def test_the_simulator_integrates_the_same_drag_coefficients():
+    """The simulator's per-sub-step drag constants are the parameters' drag coefficients (the
+    one drag model, :func:`drag_force`), bit for bit."""
+    from wt_inspect_env.rate_control import Mixer
+    from wt_inspect_env.sim import SimConfig, SubstepConstants
+    for name in ("matrice100", "lab250"):
+        p = get_preset(name)
+        k = SubstepConstants.of(p, SimConfig(), Mixer(p))
+        assert (k.lin_drag, k.quad_drag) == p.drag_coefficients

@@ -80,6 +80,14 @@ class QuadrotorParams:
                 f"max_rotor_thrust must allow 2 m g of total thrust, got {self.max_rotor_thrust!r}")
 
     @property
+    def drag_coefficients(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """(linear ``rotor_drag`` D [N/(m/s)], quadratic 1/2 rho C_d A [N/(m/s)^2]) per body axis,
+        of the drag F = -(D + k |v_rel|) v_rel (:func:`drag_force`)."""
+        lin = tuple(float(x) for x in self.rotor_drag)
+        quad = tuple(0.5 * AIR_DENSITY * float(x) for x in self.body_drag_area)
+        return lin, quad  # type: ignore[return-value]
+
+    @property
     def weight(self) -> float:
         """m g [N]: the hover thrust."""
         return hover_thrust(self.mass)
@@ -165,8 +173,8 @@ def get_preset(name: str) -> QuadrotorParams:
 def drag_force(params: QuadrotorParams, v_rel_body) -> np.ndarray:
     """Aerodynamic force in body axes for the airspeed ``v_rel_body`` = R^T (v - v_wind):
     F = -D v_rel - 1/2 rho C_d A |v_rel| v_rel, with the linear rotor drag D = ``rotor_drag`` and
-    the quadratic body drag ``body_drag_area`` per body axis - the simulator's drag model (which
-    evaluates the same formula inline in its physics loop)."""
+    the quadratic body drag ``body_drag_area`` per body axis (:attr:`QuadrotorParams.drag_coefficients`)
+    - the simulator's drag model, which evaluates the same formula inline in its physics loop."""
     v = np.asarray(v_rel_body, dtype=float)
-    speed = float(np.linalg.norm(v))
-    return -(np.asarray(params.rotor_drag) + 0.5 * AIR_DENSITY * np.asarray(params.body_drag_area) * speed) * v
+    lin, quad = params.drag_coefficients
+    return -(np.asarray(lin) + np.asarray(quad) * float(np.linalg.norm(v))) * v
