@@ -29,6 +29,17 @@ Face labels (``triangle_face``): 0 front (+axis), 1 back (-axis), 2 edge towards
 (``chord = axis x radial``), 3 edge towards -chord. ``triangle_surface = 4 * blade + face``. The
 planner does not use these labels (it clusters by geometry, so it also works on loaded meshes);
 tests use them to check the clustering.
+
+Realistic turbines: ``TurbineSpec(blade=BladeShape(...))`` replaces the cuboid by a parametric
+blade (chord, twist and relative thickness along the span, circle-to-aerofoil sections; see
+:mod:`.blade_geometry`; its face labels are the suction side 0, pressure side 1, leading edge 2 and
+trailing edge 3, from the design's twist), ``tower_top_radius`` tapers the tower and
+``nacelle_radius``/``nacelle_length`` add a nacelle; ``TurbineSpec(preset="nrel-5mw")`` is the NREL
+5-MW reference turbine (:mod:`.turbine_presets`, with its sources).
+
+Loading (:func:`load_turbine_mesh`): STL/OBJ/PLY/GLB through trimesh, with unit, up-axis and
+ground options (:class:`MeshLoadOptions`); the blades are told from tower, hub and nacelle by
+shape, or by face lists.
 """
 from __future__ import annotations
 

@@ -45,7 +45,9 @@ class PlannerConfig:
         Sampling step of the clearance checks along the stand-off path (each sample must clear
         ``clearance + check_step / 2``, which makes the continuous path clear ``clearance``).
     cluster_angle_deg
-        Normals of touching triangles within this angle belong to the same surface.
+        A blade triangle whose normal leans more than this out of the blade's cross-section plane
+        faces the root or the tip (a cap) and belongs to no inspection surface (see
+        :mod:`.clustering`; surfaces are the four sectors of each blade's section).
     max_end_trim
         How far [m] an end of a surface's centre line may be moved inwards when the stand-off
         at that end is not clear of the turbine (e.g. the root of a back face whose stand-off

@@ -84,7 +84,8 @@ def plan_figure(plan: InspectionPlan) -> Figure:
         if ph > 1:
             title += f" (rotor turned {plan.rotor_positions[ph - 1].turn_deg:g} deg)"
         ax.set_title(title)
-        ax.legend(loc="upper left", fontsize=8)
+        if ax.get_legend_handles_labels()[0]:      # the last phase has neither take-off nor hold point
+            ax.legend(loc="upper left", fontsize=8)
     fig.suptitle(f"Inspection plan: {plan.n_surfaces} surfaces, tour {plan.tour_length:.1f} m "
                  f"(stand-off path {plan.path_length:.1f} m, d_ref {plan.standoff:g} m); "
                  "coloured: inspection, black: transitions")
