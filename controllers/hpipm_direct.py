@@ -42,6 +42,7 @@ HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
 _SHIM = r"""
 #include <stdlib.h>
 #include <string.h>
+#include <math.h>
 
 /* HPIPM (libhpipm of the casadi wheel): opaque structs, sizes from its *_strsize/_memsize. */
 typedef unsigned long hsize;
@@ -76,6 +77,8 @@ extern hsize d_ocp_qp_sol_memsize(void *dim);
 extern void d_ocp_qp_sol_create(void *dim, void *sol, void *mem);
 extern void d_ocp_qp_sol_get_u(int stage, void *sol, double *v);
 extern void d_ocp_qp_sol_get_x(int stage, void *sol, double *v);
+extern void d_ocp_qp_sol_get_lam_lbu(int stage, void *sol, double *v);
+extern void d_ocp_qp_sol_get_lam_ubu(int stage, void *sol, double *v);
 extern hsize d_ocp_qp_ipm_arg_strsize(void);
 extern hsize d_ocp_qp_ipm_arg_memsize(void *dim);
 extern void d_ocp_qp_ipm_arg_create(void *dim, void *arg, void *mem);
@@ -99,6 +102,10 @@ typedef struct {
     void *mem[5];
     int *idxbx, *idxbu;
     double *A0, *S0, *b0, *r0, *tmp_b, *tmp_r;
+    /* tangential predictor: stage data of the last load, gains, base solution */
+    double *Qs, *Ss, *Rs, *As, *Bs, *lbu, *ubu;
+    double *K, *P, *G, *Huu, *Hux, *dx, *dxn, *du, *dw_base, *dx0_base, *lam;
+    int *active, pred_valid;
 } vtqp;
 
 static void *zalloc(hsize n) { void *p = calloc(1, n ? n : 1); return p; }
@@ -110,6 +117,8 @@ void vtqp_free(vtqp *h) {
     free(h->dim); free(h->qp); free(h->sol); free(h->arg); free(h->ws);
     free(h->idxbx); free(h->idxbu);
     free(h->A0); free(h->S0); free(h->b0); free(h->r0); free(h->tmp_b); free(h->tmp_r);
+    free(h->K); free(h->P); free(h->G); free(h->Huu); free(h->Hux); free(h->dx); free(h->dxn);
+    free(h->du); free(h->dw_base); free(h->dx0_base); free(h->active); free(h->lam);
     free(h);
 }
 
@@ -162,6 +171,18 @@ vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, in
     h->r0 = (double *) zalloc(sizeof(double) * nu);
     h->tmp_b = (double *) zalloc(sizeof(double) * nx);
     h->tmp_r = (double *) zalloc(sizeof(double) * nu);
+    h->K = (double *) zalloc(sizeof(double) * N * nu * nx);
+    h->P = (double *) zalloc(sizeof(double) * nx * nx * 3);
+    h->G = (double *) zalloc(sizeof(double) * nu * nx);
+    h->Huu = (double *) zalloc(sizeof(double) * N * nu * nu);
+    h->Hux = (double *) zalloc(sizeof(double) * N * nu * nx);
+    h->lam = (double *) zalloc(sizeof(double) * N * nu * 2);
+    h->dx = (double *) zalloc(sizeof(double) * nx);
+    h->dxn = (double *) zalloc(sizeof(double) * nx);
+    h->du = (double *) zalloc(sizeof(double) * nu);
+    h->dw_base = (double *) zalloc(sizeof(double) * (N * (nx + nu) + nx));
+    h->dx0_base = (double *) zalloc(sizeof(double) * nx);
+    h->active = (int *) zalloc(sizeof(int) * N * nu);
     return h;
 }
 
@@ -196,6 +217,126 @@ void vtqp_load(vtqp *h, double *Qs, double *Ss, double *Rs, double *qs, double *
     memcpy(h->S0, Ss, sizeof(double) * nu * nx);
     memcpy(h->b0, bs, sizeof(double) * nx);
     memcpy(h->r0, rs, sizeof(double) * nu);
+    h->Qs = Qs; h->Ss = Ss; h->Rs = Rs; h->As = As; h->Bs = Bs; h->lbu = lbu; h->ubu = ubu;
+    h->pred_valid = 0;
+}
+
+/* Cholesky solve of the free block of Huu (n = nu, free rows/cols where !act): X = -Huu_FF^-1 Hux_F,
+   written into the free rows of K (nu x nx, column-major), zero rows for active inputs. */
+static int gain_rows(int nu, int nx, const int *act, double *Huu, const double *Hux, double *K) {
+    int f[16], nf = 0, i, j, c, l;
+    double L[256];
+    for (i = 0; i < nu; ++i) if (!act[i]) f[nf++] = i;
+    for (i = 0; i < nu * nx; ++i) K[i] = 0.0;
+    if (nf == 0) return 0;
+    for (i = 0; i < nf; ++i) for (j = 0; j <= i; ++j) {
+        double v = Huu[f[i] + f[j] * nu];
+        for (l = 0; l < j; ++l) v -= L[i + l * nf] * L[j + l * nf];
+        if (i == j) { if (v <= 0) return -1; L[i + i * nf] = sqrt(v); }
+        else L[i + j * nf] = v / L[j + j * nf];
+    }
+    for (c = 0; c < nx; ++c) {
+        double y[16];
+        for (i = 0; i < nf; ++i) {           /* L y = -Hux_F[:, c] */
+            double v = -Hux[f[i] + c * nu];
+            for (l = 0; l < i; ++l) v -= L[i + l * nf] * y[l];
+            y[i] = v / L[i + i * nf];
+        }
+        for (i = nf - 1; i >= 0; --i) {      /* L^T x = y */
+            double v = y[i];
+            for (l = i + 1; l < nf; ++l) v -= L[l + i * nf] * y[l];
+            y[i] = v / L[i + i * nf];
+        }
+        for (i = 0; i < nf; ++i) K[f[i] + c * nu] = y[i];
+    }
+    return 0;
+}
+
+/* Tangential predictor, preparation side: after a solve for dx0 (the base), hold the active
+   input bounds and compute the gains of the solution w.r.t. dx0 by a Riccati recursion on the
+   free inputs: u_k = K_k dx_k; keep each stage's Huu, Hux (the change of the inputs' gradient,
+   which moves the active bounds' multipliers) and the base multipliers. Returns 0, or -1 when the
+   base solve failed or a reduced Hessian is not positive definite (the feedback then solves the
+   full QP). */
+int vtqp_sens(vtqp *h, const double *dx0, const double *dw, double act_tol, int status) {
+    int i, j, k, l, N = h->N, nx = h->nx, nu = h->nu, nz = nx + nu;
+    double *P = h->P, *Pn = h->P + nx * nx, *PA = h->P + 2 * nx * nx;
+    h->pred_valid = 0;
+    if (status != 0 || nu > 16) return -1;
+    memcpy(h->dw_base, dw, sizeof(double) * (N * nz + nx));
+    memcpy(h->dx0_base, dx0, sizeof(double) * nx);
+    for (k = 0; k < N; ++k) {
+        d_ocp_qp_sol_get_lam_lbu(k, h->sol, h->lam + 2 * k * nu);
+        d_ocp_qp_sol_get_lam_ubu(k, h->sol, h->lam + 2 * k * nu + nu);
+    }
+    for (k = 0; k < N; ++k) for (i = 0; i < nu; ++i) {
+        double u = dw[k * nz + nx + i], lo = h->lbu[k * nu + i], hi = h->ubu[k * nu + i];
+        double scale = act_tol * (hi - lo > 1.0 ? hi - lo : 1.0);
+        h->active[k * nu + i] = (u - lo < scale) || (hi - u < scale);
+    }
+    memcpy(P, h->Qs + N * nx * nx, sizeof(double) * nx * nx);
+    for (k = N - 1; k >= 0; --k) {
+        const double *A = h->As + k * nx * nx, *B = h->Bs + k * nx * nu;
+        const double *R = h->Rs + k * nu * nu, *S = h->Ss + k * nu * nx;
+        double *K = h->K + k * nu * nx, *Huu = h->Huu + k * nu * nu, *Hux = h->Hux + k * nu * nx;
+        /* G = B^T P (nu x nx) */
+        for (i = 0; i < nu; ++i) for (j = 0; j < nx; ++j) {
+            double v = 0; for (l = 0; l < nx; ++l) v += B[l + i * nx] * P[l + j * nx]; h->G[i + j * nu] = v; }
+        for (i = 0; i < nu; ++i) for (j = 0; j < nu; ++j) {
+            double v = R[i + j * nu]; for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * B[l + j * nx]; Huu[i + j * nu] = v; }
+        for (i = 0; i < nu; ++i) for (j = 0; j < nx; ++j) {
+            double v = S[i + j * nu]; for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * A[l + j * nx]; Hux[i + j * nu] = v; }
+        if (gain_rows(nu, nx, h->active + k * nu, Huu, Hux, K)) return -1;
+        if (k == 0) break;
+        /* Pn = Q + A^T (P A) + Hux^T K  (then symmetrised) */
+        for (i = 0; i < nx; ++i) for (j = 0; j < nx; ++j) {
+            double v = 0; for (l = 0; l < nx; ++l) v += P[i + l * nx] * A[l + j * nx]; PA[i + j * nx] = v; }
+        for (i = 0; i < nx; ++i) for (j = 0; j < nx; ++j) {
+            double v = h->Qs[k * nx * nx + i + j * nx];
+            for (l = 0; l < nx; ++l) v += A[l + i * nx] * PA[l + j * nx];
+            for (l = 0; l < nu; ++l) v += Hux[l + i * nu] * K[l + j * nu];
+            Pn[i + j * nx] = v;
+        }
+        for (i = 0; i < nx; ++i) for (j = 0; j < nx; ++j) P[i + j * nx] = 0.5 * (Pn[i + j * nx] + Pn[j + i * nx]);
+    }
+    h->pred_valid = 1;
+    return 0;
+}
+
+/* Tangential predictor, feedback side: dw = dw_base + the response to dx0 - dx0_base with the
+   active set held. Returns 0, or 1 when the active set would change - a free input leaving its
+   bounds, or an active bound's multiplier turning negative - or no valid prediction exists: the
+   caller then solves the full QP. */
+int vtqp_predict(vtqp *h, const double *dx0, double *dw) {
+    int i, j, k, N = h->N, nx = h->nx, nu = h->nu, nz = nx + nu;
+    double *dx = h->dx, *dxn = h->dxn, *du = h->du;
+    if (!h->pred_valid) return 1;
+    for (i = 0; i < nx; ++i) { dx[i] = dx0[i] - h->dx0_base[i]; dw[i] = dx0[i]; }
+    for (k = 0; k < N; ++k) {
+        const double *A = h->As + k * nx * nx, *B = h->Bs + k * nx * nu, *K = h->K + k * nu * nx;
+        const double *Huu = h->Huu + k * nu * nu, *Hux = h->Hux + k * nu * nx, *lam = h->lam + 2 * k * nu;
+        for (i = 0; i < nu; ++i) {
+            double v = 0; for (j = 0; j < nx; ++j) v += K[i + j * nu] * dx[j]; du[i] = v;
+            v += h->dw_base[k * nz + nx + i];
+            if (!h->active[k * nu + i] && (v < h->lbu[k * nu + i] || v > h->ubu[k * nu + i])) return 1;
+            dw[k * nz + nx + i] = v;
+        }
+        for (i = 0; i < nu; ++i) if (h->active[k * nu + i]) {
+            double g = 0;   /* change of d(cost-to-go)/du_i: moves lam_lb by +g, lam_ub by -g */
+            for (j = 0; j < nu; ++j) g += Huu[i + j * nu] * du[j];
+            for (j = 0; j < nx; ++j) g += Hux[i + j * nu] * dx[j];
+            if (lam[i] >= lam[nu + i] ? lam[i] + g < 0.0 : lam[nu + i] - g < 0.0) return 1;   /* lower : upper */
+        }
+        for (i = 0; i < nx; ++i) {
+            double v = 0;
+            for (j = 0; j < nx; ++j) v += A[i + j * nx] * dx[j];
+            for (j = 0; j < nu; ++j) v += B[i + j * nx] * du[j];
+            dxn[i] = v;
+            dw[(k + 1) * nz + i] = h->dw_base[(k + 1) * nz + i] + v;
+        }
+        for (i = 0; i < nx; ++i) dx[i] = dxn[i];
+    }
+    return 0;
 }
 
 /* Feedback: b_0 = A_0 dx0 + b_0, r_0 = r_0 + S_0 dx0, solve, write dw = [dx0 du0 dx1 ... dxN].
@@ -292,6 +433,10 @@ class HpipmQP:
             lib.vtqp_load.argtypes = [vp] + [dp] * 12
             lib.vtqp_feedback.restype = None
             lib.vtqp_feedback.argtypes = [vp, dp, dp, ip]
+            lib.vtqp_sens.restype = ctypes.c_int
+            lib.vtqp_sens.argtypes = [vp, dp, dp, ctypes.c_double, ctypes.c_int]
+            lib.vtqp_predict.restype = ctypes.c_int
+            lib.vtqp_predict.argtypes = [vp, dp, dp]
             lib.vtqp_free.restype = None
             lib.vtqp_free.argtypes = [vp]
             cls._lib = lib
@@ -306,6 +451,16 @@ class HpipmQP:
         """Solve for the measured dx_0; the step is written to ``dw``; returns (status, iterations)."""
         self._lib.vtqp_feedback(self._handle, dx0_ptr, dw_ptr, self._stats_ptr)
         return int(self._stats[0]), int(self._stats[1])
+
+    def sensitivities(self, dx0_ptr: int, dw_ptr: int, status: int, active_tol: float = 1e-6) -> bool:
+        """After a solve for ``dx0`` (its solution in ``dw``): the gains of the solution with the
+        active input bounds held (tangential predictor). False when there is no valid prediction."""
+        return self._lib.vtqp_sens(self._handle, dx0_ptr, dw_ptr, float(active_tol), int(status)) == 0
+
+    def predict(self, dx0_ptr: int, dw_ptr: int) -> bool:
+        """The predicted solution for a new ``dx0`` into ``dw``; False (and ``dw`` not to be used)
+        when a free input would leave its bounds or no prediction is prepared."""
+        return self._lib.vtqp_predict(self._handle, dx0_ptr, dw_ptr) == 0
 
     def __del__(self) -> None:
         handle = getattr(self, "_handle", None)

@@ -223,7 +223,13 @@ class RTIOptions:
     ``qp_mu0``: HPIPM's initial barrier parameter (None: the ``qp_mode`` preset's, 10 for
     ``speed_abs``). 1.0 is what the acados anchor runs with; measured on the VT-NMPC it needs 2
     interior-point iterations instead of 3 and lands closer to the converged QP solution when
-    rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve)."""
+    rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve).
+    ``tangential_predictor`` (with ``qp_solver="hpipm"``): the preparation also solves the QP for
+    the state the plan predicts and the solution's gains with respect to x_0 with its active input
+    bounds held (a Riccati recursion on the free inputs); the feedback is then that affine map of
+    the measured state (a few microseconds) - the exact QP solution as long as the active set does
+    not change, and the full QP is solved whenever a free input would leave its bounds. Pays off
+    when the preparation runs ahead of the measurement (``prepare_ahead`` of the policies)."""
 
     compiled: bool = True
     cache_dir: str | None = None
@@ -233,12 +239,18 @@ class RTIOptions:
     regularization: float = 0.0
     qp_solver: str = "casadi"
     qp_mu0: float | None = None
+    tangential_predictor: bool = False
 
     def __post_init__(self) -> None:
         check_choice("qp_mode", self.qp_mode, ("speed_abs", "speed", "balance", "robust"))
         check_choice("qp_solver", self.qp_solver, QP_SOLVERS)
         if self.qp_mu0 is not None:
             check_positive("qp_mu0", self.qp_mu0)
+        if not isinstance(self.tangential_predictor, bool):
+            raise ValueError(f"tangential_predictor must be a bool, got {self.tangential_predictor!r}")
+        if self.tangential_predictor and self.qp_solver != "hpipm":
+            raise ValueError("tangential_predictor needs qp_solver='hpipm', got "
+                             f"qp_solver={self.qp_solver!r}")
         if isinstance(self.qp_iter_max, bool) or not isinstance(self.qp_iter_max, int) \
                 or self.qp_iter_max < 1:
             raise ValueError(f"qp_iter_max must be a positive integer, got {self.qp_iter_max!r}")
@@ -254,7 +266,8 @@ class SolveStats:
     time from measurement to command (the feedback, plus the preparation when it ran after the
     measurement arrived). ``status`` is HPIPM's flag name (``SUCCESS``, ``MAX_ITER``, ``MIN_STEP``,
     ``NAN_SOL``...) or ``NONFINITE`` when the step contained NaN/inf; ``fallback`` tells whether
-    the command came from the shifted previous plan / hover instead of this QP.
+    the command came from the shifted previous plan / hover instead of this QP; ``predicted`` that
+    the feedback was the tangential predictor (its QP iterations were spent in the preparation).
     """
 
     solve_ms: float = 0.0
@@ -265,6 +278,7 @@ class SolveStats:
     status: str = "NOT_SOLVED"
     fallback: bool = False
     fallback_source: str = ""
+    predicted: bool = False
     cost: float = float("nan")
     sqp_iterations: int = 0
     step_norm: float = float("nan")
@@ -647,6 +661,10 @@ class RTISolver:
             np.subtract(d["x_lo"], xs, out=lbx)
             np.subtract(d["x_hi"], xs, out=ubx)
         d["qp"].load(*d["ptrs"])
+        if self.options.tangential_predictor:   # solve for the predicted x_0 (dx_0 = 0), then the gains
+            self._dx0[:] = 0.0
+            code, iterations = d["qp"].feedback(d["dx0_ptr"], d["dw_ptr"])
+            d["base"] = (code, iterations) if d["qp"].sensitivities(d["dx0_ptr"], d["dw_ptr"], code) else None
 
     def _solve_qp(self) -> dict:
         """HPIPM on the arrays bound to the QP inputs/outputs; returns its statistics.
@@ -678,10 +696,16 @@ class RTISolver:
             raise ValueError(f"x0 must be {nx} finite numbers, got {x0!r}")
         w, dw = self._w, self._dw
         t0 = time.perf_counter()
+        predicted = False
         if self._direct is not None:
+            d = self._direct
             np.subtract(x0, w[:nx], out=self._dx0)
-            code, iterations = self._direct["qp"].feedback(self._direct["dx0_ptr"], self._direct["dw_ptr"])
-            cost = float(self._direct["cost"][0])
+            if d.get("base") is not None and d["qp"].predict(d["dx0_ptr"], d["dw_ptr"]):
+                (code, iterations), predicted = d["base"], True
+            else:
+                code, iterations = d["qp"].feedback(d["dx0_ptr"], d["dw_ptr"])
+            d["base"] = None
+            cost = float(d["cost"][0])
         else:
             np.subtract(x0, w[:nx], out=self._lbx[:nx])
             self._ubx[:nx] = self._lbx[:nx]
@@ -696,7 +720,7 @@ class RTISolver:
             status = "NONFINITE"
         st = SolveStats(prepare_ms=self._prepare_ms, feedback_ms=elapsed,
                         solve_ms=self._prepare_ms + elapsed, latency_ms=self._prepare_ms + elapsed,
-                        qp_iterations=iterations, status=status, cost=cost)
+                        qp_iterations=iterations, status=status, cost=cost, predicted=predicted)
         if ok:
             w += dw
             st.step_norm = float(np.max(np.abs(dw)))

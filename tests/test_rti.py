@@ -392,3 +392,43 @@ def test_qp_mu0_reaches_both_qp_paths(cache_dir):
     assert np.max(np.abs(p1 - p10)) > 1e-6
     with pytest.raises(ValueError, match="qp_mu0"):
         RTIOptions(qp_mu0=0.0)
+
+
+def test_tangential_predictor_is_the_qp_solution_while_the_active_set_holds(cache_dir):
+    """With tangential_predictor the preparation solves the QP for the plan's x_0 and its gains;
+    the feedback for a nearby measurement is then the full QP's solution (no bound active here:
+    to 1e-8), flagged ``predicted``; when the active set changes (the hard start, measured far
+    from the plan) the feedback solves the full QP instead, and gives its solution."""
+    fast = dict(cache_dir=cache_dir, qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0)
+    cfg = VTNMPCConfig()
+    ocp, W, WN, x_hard, p_hard = hard_vtnmpc_problem(cfg)
+    x0 = ideal_state(POINT, NORMAL, cfg.d_ref)
+    x0[0:3] += [0.3, -0.2, 0.1]
+    p0 = vtnmpc_parameters(x0, POINT, NORMAL[:2], np.array([0.5, 0.0, 0.0]))
+    rng = np.random.default_rng(1)
+
+    def both(x_plan, params, x_meas):
+        out = []
+        for pred in (True, False):
+            s = RTISolver(ocp, W, WN, RTIOptions(tangential_predictor=pred, **fast))
+            s.initialize(x_plan)
+            s.prepare(params)
+            s.feedback(x_meas)
+            out.append((s.iterate, s.last_stats))
+        return out
+
+    for _ in range(3):
+        x_meas = x0 + 0.02 * rng.standard_normal(10) * np.r_[np.ones(6), 0.1 * np.ones(4)]
+        (w_p, st_p), (w_f, st_f) = both(x0, p0, x_meas)
+        assert st_p.predicted and not st_f.predicted and st_p.status == "SUCCESS"
+        np.testing.assert_allclose(w_p, w_f, atol=1e-8)
+    changed = 0
+    for _ in range(4):
+        x_far = x_hard + 0.1 * rng.standard_normal(10) * np.r_[np.ones(6), 0.1 * np.ones(4)]
+        (w_p, st_p), (w_f, _) = both(x_hard, p_hard, x_far)
+        if not st_p.predicted:
+            changed += 1
+            np.testing.assert_allclose(w_p, w_f, atol=1e-12)   # the same full QP
+    assert changed >= 1   # the active set did change for some of these measurements
+    with pytest.raises(ValueError, match="tangential_predictor"):
+        RTIOptions(tangential_predictor=True)   # needs qp_solver='hpipm'

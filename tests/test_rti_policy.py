@@ -156,6 +156,29 @@ def test_prepare_ahead_runs_only_the_feedback_after_the_command(options):
     assert abs(runs[True].distance[-1] - runs[False].distance[-1]) < 0.01
 
 
+def test_prepare_ahead_with_the_tangential_predictor_flies_the_same_loop(params):
+    """prepare_ahead + tangential_predictor: the feedback is the predictor (the QP was solved in
+    the preparation) and the closed loop is the full-QP loop's to QP tolerance."""
+    sc = SurfacePass()
+    x0 = offset_start(sc, 7.0)
+    fast = dict(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0)
+    runs, predicted = {}, []
+    for pred in (False, True):
+        policy = VTNMPCPolicy(params=params, prepare_ahead=True,
+                              solver=RTIOptions(tangential_predictor=pred, **fast))
+        act = policy.act
+
+        def logged(obs, act=act, policy=policy):
+            out = act(obs)
+            predicted.append(policy.last_stats.predicted)
+            return out
+        policy.act = logged
+        runs[pred] = run_closed_loop(policy, ModelPlant(params), sc, 400, x0, policy.scaling)
+    assert not any(predicted[:400]) and np.mean(predicted[401:]) > 0.9   # first step: nothing prepared
+    assert runs[True].fallbacks == 0
+    np.testing.assert_allclose(runs[True].states, runs[False].states, atol=1e-6)
+
+
 def test_prepare_ahead_is_off_for_ipopt_and_validated():
     with pytest.raises(ValueError, match="prepare_ahead"):
         VTNMPCPolicy(prepare_ahead="yes")

@@ -20,6 +20,8 @@ compiled C, HPIPM), ``rti_ahead`` (the same with ``prepare_ahead``: the next ste
 at the predicted state after the command is returned, so the latency is the feedback QP alone),
 ``rti_hpipm`` / ``rti_hpipm_ahead`` (the same two with HPIPM called directly,
 :mod:`controllers.hpipm_direct`, instead of through CasADi's plugin, and ``qp_mu0=1``),
+``rti_predict`` (the latter with the QP solved in the preparation for the predicted state and
+the feedback its tangential predictor: the full QP only when the active set changes),
 ``rti_uncompiled`` (the same, QP data by CasADi's virtual machine), ``ipopt``
 (the VT-NMPC OCP solved to convergence every step, warm-started), ``vtnmpc_plus`` (VT-NMPC+, the
 observer inside the timed step), ``nmpc`` and ``pampc`` (the paper's baselines, compiled RTI with
@@ -58,10 +60,10 @@ def _vtnmpc_variant(**options: Any) -> Callable[[Any], Any]:
     return build
 
 
-def _direct_hpipm() -> Any:
+def _direct_hpipm(**options: Any) -> Any:
     """HPIPM called directly, with acados' initial barrier parameter (2 IPM iterations, not 3)."""
     from controllers.rti import RTIOptions
-    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0)
+    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0, **options)
 
 
 def _uncompiled(env: Any) -> Any:
@@ -77,6 +79,8 @@ SOLVERS: dict[str, tuple[str, Callable[[], Callable[[Any], Any]]]] = {
                   lambda: _vtnmpc_variant(solver=_direct_hpipm())),
     "rti_hpipm_ahead": ("VT-NMPC, HPIPM called directly, next step prepared after the command",
                         lambda: _vtnmpc_variant(solver=_direct_hpipm(), prepare_ahead=True)),
+    "rti_predict": ("VT-NMPC, direct HPIPM, QP solved ahead, tangential predictor as feedback",
+                    lambda: _vtnmpc_variant(solver=_direct_hpipm(tangential_predictor=True), prepare_ahead=True)),
     "rti_uncompiled": ("VT-NMPC, uncompiled QP data", lambda: _uncompiled),
     "ipopt": ("VT-NMPC OCP, IPOPT to convergence", lambda: _vtnmpc_variant(backend="ipopt")),
     "vtnmpc_plus": ("VT-NMPC+, compiled RTI", lambda: registry.resolve("vtnmpc-plus")),
@@ -169,7 +173,7 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
-    parser.add_argument("--solvers", default="rti_compiled,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
+    parser.add_argument("--solvers", default="rti_compiled,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
                         help="comma-separated subset of " + ", ".join(SOLVERS))
     args = parser.parse_args(argv)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
