@@ -18,8 +18,8 @@ Development*, NREL/TP-500-38060, National Renewable Energy Laboratory, February 
 
 Not in the report, assumed here and marked so: the nacelle, an obstacle only, is modelled as a
 cylinder of 1.75 m radius running 12 m back from the tower axis; the hub is the usual cylinder of
-the hub radius. The roots of neighbouring blades (3.54 m cylinders starting 1.5 m from the rotor
-centre) overlap for their first ~0.6 m, as the real roots do inside the hub shell.
+the hub radius. The 3.54 m root cylinders, starting 1.5 m from the rotor centre, stay 0.83 m
+apart from their neighbours (measured on the mesh).
 """
 from __future__ import annotations
 
