@@ -291,3 +291,25 @@ def test_env_flies_the_exported_turbine(turb, tmp_path):
     finally:
         env.close()
         ref.close()
+
+
+@pytest.mark.parametrize("spec_kw", [
+    {"rotor_azimuth_deg": 60.0, "facing_deg": -30.0},            # one blade straight down, past the tower
+    {"rotor_azimuth_deg": 13.0, "facing_deg": 200.0, "position": (40.0, -7.0), "blade_length": 30.0,
+     "blade_width": 2.0, "tower_height": 70.0},
+    {"preset": "nrel-5mw", "rotor_azimuth_deg": 90.0, "mesh_step": 2.0},   # twisted blades, nacelle
+])
+def test_blades_are_recognised_in_any_pose(tmp_path, spec_kw):
+    t = build_turbine(TurbineSpec(**spec_kw))
+    loaded = load_turbine_mesh(t.export(tmp_path / "t.stl"))
+    m, c = len(t.blade_vertices), len(t.cap_vertices)
+    assert loaded.n_blade_triangles == m + c                    # exactly the blades (with their caps)
+    np.testing.assert_allclose(loaded.blade_vertices, np.concatenate([t.blade_vertices, t.cap_vertices]), atol=1e-3)
+    assert abs(float(loaded.rotor_axis @ t.rotor_axis)) > 1 - 1e-6
+    # only the centre's offset across the axis matters for turning the rotor (a twisted, cambered
+    # blade's principal axis misses the centre by ~0.1 m along the rotor axis)
+    off = loaded.rotor_center - t.rotor_center
+    assert np.linalg.norm(off - (off @ t.rotor_axis) * t.rotor_axis) < 1e-2
+    assert abs(off @ t.rotor_axis) < 0.2
+    np.testing.assert_allclose(loaded.rotated(120.0).blade_vertices[:m], t.rotated(120.0).blade_vertices,
+                               atol=2e-2)
