@@ -98,6 +98,36 @@ def _mesh_arrays(mesh: Any) -> tuple[list, list]:
     return v.tolist(), f.astype(np.int64).ravel().tolist()
 
 
+def new_client(mode: int, physics_dt: float) -> int:
+    """A PyBullet client set up as every simulator of this package uses it: gravity along -z, a
+    fixed step of ``physics_dt`` without sub-stepping, deterministic overlapping pairs."""
+    cid = p.connect(mode)
+    if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients / no display
+        raise RuntimeError("PyBullet could not create a client")
+    try:
+        p.resetSimulation(physicsClientId=cid)
+        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
+        p.setPhysicsEngineParameter(fixedTimeStep=physics_dt, numSubSteps=0, deterministicOverlappingPairs=1,
+                                    physicsClientId=cid)
+    except BaseException:  # pragma: no cover
+        p.disconnect(physicsClientId=cid)
+        raise
+    return cid
+
+
+def create_drone_body(cid: int, params: QuadrotorParams, shape: int | None = None) -> int:
+    """The drone's rigid body: a box of the airframe's collision size with its mass and inertia, no
+    damping (so it matches the model), never asleep. ``shape``: a box shape to reuse."""
+    if shape is None:
+        shape = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
+                                       physicsClientId=cid)
+    body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape, basePosition=[0, 0, 1],
+                             physicsClientId=cid)
+    p.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, localInertiaDiagonal=list(params.inertia),
+                     activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid)
+    return body
+
+
 @dataclass(frozen=True)
 class SubstepConstants:
     """Per-sub-step constants of the motor lag, torque rows of the mixer and drag, shared by
@@ -187,24 +217,9 @@ class QuadrotorSim:
     def _build_world(self, mode: int) -> None:
         """Connect a client of the given mode and create drone, ground and obstacles in it."""
         params, config = self.params, self.config
-        cid = p.connect(mode)
-        if cid < 0:  # pragma: no cover - PyBullet refuses only when out of clients / no display
-            raise RuntimeError("PyBullet could not create a client")
-        self._client = cid
+        cid = self._client = new_client(mode, self.physics_dt)
         try:
-            p.resetSimulation(physicsClientId=cid)
-            p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
-            p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
-                                        deterministicOverlappingPairs=1, physicsClientId=cid)
-            shape = p.createCollisionShape(p.GEOM_BOX,
-                                           halfExtents=list(params.collision_half_extents),
-                                           physicsClientId=cid)
-            self._body = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=shape,
-                                           basePosition=[0, 0, 1], physicsClientId=cid)
-            p.changeDynamics(self._body, -1, linearDamping=0.0, angularDamping=0.0,
-                             localInertiaDiagonal=list(params.inertia),
-                             activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
-                             physicsClientId=cid)
+            self._body = create_drone_body(cid, params)
             # Own collision group: still collides with everything, but ray tests (camera
             # occlusion) can exclude it with RAY_MASK_WITHOUT_DRONE.
             p.setCollisionFilterGroupMask(self._body, -1, DRONE_COLLISION_GROUP, 0xFFFF,

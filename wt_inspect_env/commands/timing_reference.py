@@ -17,8 +17,8 @@ from typing import Any
 
 import pybullet as p
 
-from ..quadrotor import GRAVITY, QuadrotorParams
-from ..sim import _mesh_arrays
+from ..quadrotor import QuadrotorParams
+from ..sim import _mesh_arrays, create_drone_body, new_client
 
 
 def rss_mb() -> float:
@@ -34,22 +34,14 @@ def rss_mb() -> float:
 def raw_pybullet_rate(params: QuadrotorParams, ctrl_hz: float = 100.0, physics_hz: float = 400.0,
                       obstacle: Any = None, control_steps: int = 5000, repeats: int = 3) -> float:
     """Median control steps per second of bare PyBullet stepping (see the module docstring)."""
-    cid = p.connect(p.DIRECT)
+    cid = new_client(p.DIRECT, 1.0 / physics_hz)
     try:
-        p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
-        p.setPhysicsEngineParameter(fixedTimeStep=1.0 / physics_hz, numSubSteps=0,
-                                    deterministicOverlappingPairs=1, physicsClientId=cid)
         if obstacle is not None:
             verts, idx = _mesh_arrays(obstacle)
             shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
                                            flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
             p.createMultiBody(0.0, shape, physicsClientId=cid)
-        box = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
-                                     physicsClientId=cid)
-        body = p.createMultiBody(params.mass, box, basePosition=[0.0, -60.0, 50.0], physicsClientId=cid)
-        p.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0,
-                         localInertiaDiagonal=list(params.inertia),
-                         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid)
+        body = create_drone_body(cid, params)
         n_sub = int(round(physics_hz / ctrl_hz))
         force, torque, zero = (0.0, 0.0, params.weight), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)
         rates = []

@@ -35,9 +35,9 @@ from typing import Any, Sequence
 import numpy as np
 import pybullet as p
 
-from ..quadrotor import GRAVITY, QuadrotorParams
+from ..quadrotor import QuadrotorParams
 from ..rate_control import Mixer, RateController, RateGains
-from ..sim import DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays
+from ..sim import DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, create_drone_body, new_client
 from ..validation import check_array
 from ..wind import WindField, wind_velocities
 
@@ -126,15 +126,8 @@ class BatchedQuadrotorSim:
     # ------------------------------------------------------------------ world
     def _build_world(self, geometries: Sequence[Any]) -> None:
         params, config, n = self.params, self.config, self.n
-        cid = p.connect(p.DIRECT)
-        if cid < 0:  # pragma: no cover
-            raise RuntimeError("PyBullet could not create a client")
-        self._client = cid
+        cid = self._client = new_client(p.DIRECT, self.physics_dt)
         try:
-            p.resetSimulation(physicsClientId=cid)
-            p.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=cid)
-            p.setPhysicsEngineParameter(fixedTimeStep=self.physics_dt, numSubSteps=0,
-                                        deterministicOverlappingPairs=1, physicsClientId=cid)
             self.ground_id = -1
             if config.ground:
                 plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
@@ -153,12 +146,7 @@ class BatchedQuadrotorSim:
                                          physicsClientId=cid)
             self.body_ids: list[int] = []
             for _ in range(n):
-                b = p.createMultiBody(baseMass=params.mass, baseCollisionShapeIndex=box,
-                                      basePosition=[0, 0, 1], physicsClientId=cid)
-                p.changeDynamics(b, -1, linearDamping=0.0, angularDamping=0.0,
-                                 localInertiaDiagonal=list(params.inertia),
-                                 activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid)
-                self.body_ids.append(b)
+                self.body_ids.append(create_drone_body(cid, params, box))
             self._drone_index = {b: i for i, b in enumerate(self.body_ids)}
             self._geometry_index = {b: g for g, b in enumerate(self.geometry_ids)}
             for i in range(n):
