@@ -75,7 +75,6 @@ import numpy as np
 from gymnasium import spaces
 
 from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.quadrotor import GRAVITY
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_array, check_choice, check_positive, check_unknown_options
 
@@ -331,7 +330,7 @@ class ResidualHoverAction:
             raise ValueError(f"config must be an ActionConfig, got {type(config).__name__}")
         self.config = config
         self.scaling = scaling
-        self.hover_thrust = scaling.mass * GRAVITY
+        self.hover_thrust = scaling.hover_thrust
 
     def command(self, u: Any, quaternion: Any) -> np.ndarray:
         """The physical command ``[p, q, r, T]`` (before saturation at the airframe's bounds)."""
