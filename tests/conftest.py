@@ -27,7 +27,7 @@ from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
 # Written out in full rather than relying on Hypothesis' own CI detection (6.x versions differ).
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])
-settings.register_profile("dev")
+settings.register_profile("dev", derandomize=False)   # explicit: Hypothesis derandomises its default profile when it detects CI itself
 
 
 def _profile() -> str:
