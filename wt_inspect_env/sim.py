@@ -115,6 +115,27 @@ def new_client(mode: int, physics_dt: float) -> int:
     return cid
 
 
+def checked_state(state: Any) -> np.ndarray:
+    """A validated copy of a model state [p, v_body, q] with its quaternion normalised (the norm
+    must already be within 1e-3 of one)."""
+    x = check_array("state", state, (10,))
+    q = x[6:10]
+    nq = float(np.linalg.norm(q))
+    if abs(nq - 1.0) > 1e-3:
+        raise ValueError(f"state quaternion must have unit norm, got norm {nq:.6g} ({q.tolist()})")
+    x = x.copy()
+    x[6:10] = q / nq
+    return x
+
+
+def place_body(cid: int, body: int, x: np.ndarray, w_b: np.ndarray) -> None:
+    """Set a drone body's pose and world velocities in PyBullet from a model state and body rates."""
+    q = x[6:10].tolist()
+    R = np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3)
+    p.resetBasePositionAndOrientation(body, x[0:3].tolist(), q, physicsClientId=cid)
+    p.resetBaseVelocity(body, (R @ x[3:6]).tolist(), (R @ w_b).tolist(), physicsClientId=cid)
+
+
 def create_drone_body(cid: int, params: QuadrotorParams, shape: int | None = None) -> int:
     """The drone's rigid body: a box of the airframe's collision size with its mass and inertia, no
     damping (so it matches the model), never asleep. ``shape``: a box shape to reuse."""
@@ -362,13 +383,7 @@ class QuadrotorSim:
         wind reseeds it itself; it need not pass a seed here.)
         """
         self._check_open()
-        x = check_array("state", state, (10,))
-        q = x[6:10]
-        nq = float(np.linalg.norm(q))
-        if abs(nq - 1.0) > 1e-3:
-            raise ValueError(f"state quaternion must have unit norm, got norm {nq:.6g} ({q.tolist()})")
-        x = x.copy()
-        x[6:10] = q / nq
+        x = checked_state(state)
         w_b = np.zeros(3) if body_rates is None else check_array("body_rates", body_rates, (3,))
         if seed is not None:
             if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -387,12 +402,7 @@ class QuadrotorSim:
 
     def _place(self, x: np.ndarray, w_b: np.ndarray) -> None:
         """Set pose and velocities in PyBullet from a model state and body rates."""
-        cid = self._client
-        q = x[6:10].tolist()
-        R = np.array(p.getMatrixFromQuaternion(q)).reshape(3, 3)
-        p.resetBasePositionAndOrientation(self._body, x[0:3].tolist(), q, physicsClientId=cid)
-        p.resetBaseVelocity(self._body, (R @ x[3:6]).tolist(), (R @ w_b).tolist(),
-                            physicsClientId=cid)
+        place_body(self._client, self._body, x, w_b)
         self._fetch()
 
     def _fetch(self) -> None:

@@ -37,8 +37,8 @@ import pybullet as p
 
 from ..quadrotor import QuadrotorParams
 from ..rate_control import Mixer, RateController, RateGains
-from ..sim import DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, create_drone_body, new_client
-from ..validation import check_array
+from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_state,
+                   create_drone_body, new_client, place_body)
 from ..wind import WindField, wind_velocities
 
 GROUND_GROUP = 1
@@ -196,18 +196,9 @@ class BatchedQuadrotorSim:
     def reset_drone(self, i: int, state: np.ndarray) -> None:
         """Place drone ``i`` at ``state`` = [p, v_body, q] at rest in the rate loop (as
         :meth:`QuadrotorSim.reset` with zero body rates) and restart its clock."""
-        x = check_array("state", state, (10,))
-        q = x[6:10]
-        nq = float(np.linalg.norm(q))
-        if abs(nq - 1.0) > 1e-3:
-            raise ValueError(f"state quaternion must have unit norm, got norm {nq:.6g} ({q.tolist()})")
-        x = x.copy()
-        x[6:10] = q / nq
+        x = checked_state(state)
         cid, body = self._client, self.body_ids[i]
-        qq = x[6:10].tolist()
-        R = np.array(p.getMatrixFromQuaternion(qq)).reshape(3, 3)
-        p.resetBasePositionAndOrientation(body, x[0:3].tolist(), qq, physicsClientId=cid)
-        p.resetBaseVelocity(body, (R @ x[3:6]).tolist(), (R @ np.zeros(3)).tolist(), physicsClientId=cid)
+        place_body(cid, body, x, np.zeros(3))
         pos, quat = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel, omega = p.getBaseVelocity(body, physicsClientId=cid)
         self.pos[i], self.quat[i], self.vel[i], self.omega[i] = pos, quat, vel, omega
