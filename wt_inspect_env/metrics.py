@@ -311,6 +311,35 @@ def _seq_sum(values: np.ndarray) -> float:
     return float(np.cumsum(values)[-1]) if len(values) else 0.0
 
 
+def inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn) -> tuple[np.ndarray, ...]:
+    """Per-sample inspection quantities of arrays of samples - ``(h, hb, herr, d, inc, o, dist3)``
+    (see the module docstring) - from positions, quaternions with their squared norm ``qq``, points
+    and normals with their norm ``nn``. The operations mirror :meth:`MetricAccumulator.add` one for
+    one (``atan2``/``acos`` per sample through :mod:`math`), so every caller - :func:`compute_metrics`
+    and the vector environment's batched accumulator - gets the scalar path's numbers bit for bit."""
+    ax, ay, az = p0 - x0, p1 - x1, p2 - x2
+    bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
+    bx1 = 2.0 * (qx * qy + qw * qz) / qq
+    dot = bx0 * ax + bx1 * ay
+    crs = bx0 * ay - bx1 * ax
+    d = np.sqrt(ax * ax + ay * ay)
+    bxy = np.sqrt(bx0 * bx0 + bx1 * bx1)
+    ok = (d > 1e-9) & (bxy > 1e-9)
+    hb = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
+    h = np.where(ok, hb / np.where(ok, bxy, 1.0), 0.0)
+    herr = np.array([RAD2DEG * math.atan2(c, v) if k else 90.0
+                     for c, v, k in zip(np.abs(crs).tolist(), dot.tolist(), ok.tolist())])
+    u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
+    a_n = ax * u0 + ay * u1 + az * u2
+    dist3 = np.sqrt(ax * ax + ay * ay + az * az)
+    far = dist3 > 1e-9
+    cosi = np.minimum(1.0, np.maximum(-1.0, -a_n / np.where(far, dist3, 1.0)))
+    inc = np.array([RAD2DEG * math.acos(c) if k else 90.0 for c, k in zip(cosi.tolist(), far.tolist())])
+    o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
+    o = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+    return h, hb, herr, d, inc, o, dist3
+
+
 def compute_metrics(t, positions, quaternions, points, normals, *, collisions=None, n_new=None, n_visible=None,
                     d_ref=None, inspecting=None, n_triangles: int | None = None,
                     config: MetricsConfig | None = None) -> InspectionMetrics:
@@ -381,26 +410,7 @@ def compute_metrics(t, positions, quaternions, points, normals, *, collisions=No
         p0, p1, p2 = P[sel].T
         qx, qy, qz, qw, qq = qx[sel], qy[sel], qz[sel], qw[sel], qq[sel]
         n0, n1, n2, nn = n0[sel], n1[sel], n2[sel], nn[sel]
-        ax, ay, az = p0 - x0, p1 - x1, p2 - x2
-        bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-        bx1 = 2.0 * (qx * qy + qw * qz) / qq
-        dot = bx0 * ax + bx1 * ay
-        crs = bx0 * ay - bx1 * ax
-        d = np.sqrt(ax * ax + ay * ay)
-        bxy = np.sqrt(bx0 * bx0 + bx1 * bx1)
-        ok = (d > 1e-9) & (bxy > 1e-9)
-        hb = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
-        h = np.where(ok, hb / np.where(ok, bxy, 1.0), 0.0)
-        herr = np.array([RAD2DEG * math.atan2(c, v) if k else 90.0
-                         for c, v, k in zip(np.abs(crs).tolist(), dot.tolist(), ok.tolist())])
-        u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
-        a_n = ax * u0 + ay * u1 + az * u2
-        dist3 = np.sqrt(ax * ax + ay * ay + az * az)
-        far = dist3 > 1e-9
-        cosi = np.minimum(1.0, np.maximum(-1.0, -a_n / np.where(far, dist3, 1.0)))
-        inc = np.array([RAD2DEG * math.acos(c) if k else 90.0 for c, k in zip(cosi.tolist(), far.tolist())])
-        o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
-        o = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        h, hb, herr, d, inc, o, dist3 = inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn)
         err = d - dref[sel]
         abs_err = np.abs(err)
         tot.safe = int(np.count_nonzero(abs_err < config.safety_margin))

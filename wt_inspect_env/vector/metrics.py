@@ -1,8 +1,8 @@
 """The running inspection metrics of :class:`~wt_inspect_env.metrics.MetricAccumulator`, for N drones.
 
 The totals (counts, sums, minima, maxima) are arrays over drones, and :meth:`BatchedMetrics.add`
-is the scalar ``add`` written over them with the same operations in the same order (``atan2`` and
-``acos`` per drone through :mod:`math`, which NumPy's need not match to the last bit). Every drone's
+is the scalar ``add`` written over them: the per-sample quantities come from
+:func:`~wt_inspect_env.metrics.inspection_terms`, the function :func:`compute_metrics` uses too. Every drone's
 sums are still sequential in time, so :meth:`result` of drone ``i`` - built by the scalar
 ``_finish`` - is bitwise the scalar accumulator's (tested). Inputs come from the environment, which
 has validated them, so the per-sample checks of the scalar class are not repeated here.
@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from ..metrics import RAD2DEG, InspectionMetrics, MetricsConfig, _finish, _Totals
+from ..metrics import InspectionMetrics, MetricsConfig, _finish, _Totals, inspection_terms
 
 _SUMS = ("sum_h", "sum_hb", "sum_herr", "sum_d", "sum_err2", "sum_inc", "sum_o", "sum_dist3", "path")
 _MINS = ("min_h", "min_d")
@@ -89,25 +89,7 @@ class BatchedMetrics:
         ii = idx[s]
         x0, x1, x2, qx, qy, qz, qw = x0[s], x1[s], x2[s], qx[s], qy[s], qz[s], qw[s]
         p0, p1, p2, n0, n1, n2, qq, nn = p0[s], p1[s], p2[s], n0[s], n1[s], n2[s], qq[s], nn[s]
-        ax, ay, az = p0 - x0, p1 - x1, p2 - x2
-        bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-        bx1 = 2.0 * (qx * qy + qw * qz) / qq
-        dot = bx0 * ax + bx1 * ay
-        crs = bx0 * ay - bx1 * ax
-        d = np.sqrt(ax * ax + ay * ay)
-        bxy = np.sqrt(bx0 * bx0 + bx1 * bx1)
-        ok = (d > 1e-9) & (bxy > 1e-9)
-        hb = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
-        h = np.where(ok, hb / np.where(ok, bxy, 1.0), 0.0)
-        herr = np.array([RAD2DEG * math.atan2(abs(c), dt) if o else 90.0
-                         for c, dt, o in zip(crs.tolist(), dot.tolist(), ok.tolist())])
-        u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
-        a_n = ax * u0 + ay * u1 + az * u2
-        dist3 = np.sqrt(ax * ax + ay * ay + az * az)
-        inc = np.array([RAD2DEG * math.acos(min(1.0, max(-1.0, -an / d3))) if d3 > 1e-9 else 90.0
-                        for an, d3 in zip(a_n.tolist(), dist3.tolist())])
-        o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
-        o = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
+        h, hb, herr, d, inc, o, dist3 = inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn)
         err = d - dref
         abs_err = np.abs(err)
         tot["n_insp"][ii] += 1
