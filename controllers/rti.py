@@ -40,7 +40,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.validation import check_array, check_choice, check_positive
+from wt_inspect_env.validation import check_array, check_choice, check_field_types, check_positive
 
 from .codegen import CompiledFunction, compile_function, uncompiled
 
@@ -242,6 +242,7 @@ class RTIOptions:
     tangential_predictor: bool = False
 
     def __post_init__(self) -> None:
+        check_field_types(self, "solver ")
         check_choice("qp_mode", self.qp_mode, ("speed_abs", "speed", "balance", "robust"))
         check_choice("qp_solver", self.qp_solver, QP_SOLVERS)
         if self.qp_mu0 is not None:

@@ -43,7 +43,7 @@ from wt_inspect_env.geometry import HorizontalNormal
 from wt_inspect_env.policy import Policy, check_observation, state_from_observation
 from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
 from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_choice, check_positive
+from wt_inspect_env.validation import check_choice, check_field_types, check_positive
 
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
@@ -114,6 +114,7 @@ class LSQWeights:
     INPUTS: ClassVar[str] = "inputs"
 
     def __post_init__(self) -> None:
+        check_field_types(self, "weights ")
         rows = dict(self.STAGE) | dict(self.TERMINAL)
         for f in fields(self):
             if f.name == "terminal_factor":
@@ -180,6 +181,7 @@ class MPCConfig:
     prepare_ahead: bool = False
 
     def __post_init__(self) -> None:
+        check_field_types(self, "")
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
         if not isinstance(self.params, QuadrotorParams):
             raise ValueError(f"params must be QuadrotorParams, got {type(self.params).__name__}")

@@ -27,7 +27,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .validation import check_range, check_unknown_options
+from .validation import check_field_types, check_range, check_unknown_options
 
 AEROFOIL_TC = 0.40        # at or below this relative thickness the section is a pure aerofoil
 CAMBER = 0.02             # maximum camber of the aerofoil (chord units), at 40 % chord
@@ -50,6 +50,7 @@ class BladeShape:
     pitch_axis: float = 0.25
 
     def __post_init__(self) -> None:
+        check_field_types(self, "blade ")
         n = None
         for name in ("span", "chord", "twist_deg", "thickness"):
             raw = getattr(self, name)

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_array, check_finite, check_positive, check_range
+from .validation import check_array, check_field_types, check_finite, check_positive, check_range
 
 
 @dataclass(frozen=True)
@@ -62,6 +62,7 @@ class CameraConfig:
     max_incidence_deg: float = 80.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "camera ")
         check_positive("camera focal_length_mm", self.focal_length_mm)
         check_positive("camera sensor_width_mm", self.sensor_width_mm)
         check_positive("camera sensor_height_mm", self.sensor_height_mm)

@@ -15,7 +15,8 @@ from .camera import CameraConfig
 from .quadrotor import QuadrotorParams, get_preset
 from .reference import MODES as REFERENCE_MODES
 from .turbine import TurbineSpec
-from .validation import check_choice, check_finite, check_positive, check_unknown_options
+from .validation import (check_choice, check_field_types, check_finite, check_positive,
+                         check_unknown_options)
 
 TASKS = ("full", "blade", "surface")
 
@@ -41,6 +42,7 @@ class RewardConfig:
     crash: float = 100.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "reward ")
         for f in dataclasses.fields(self):
             check_positive(f"reward {f.name}", getattr(self, f.name), allow_zero=f.name != "distance_scale")
 
@@ -130,6 +132,7 @@ class EnvConfig:
     seed: int | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "")
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
         check_choice("task", self.task, TASKS)
         if self.turbine_mesh is None:

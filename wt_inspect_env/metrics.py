@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .geometry import heading_and_distance  # noqa: F401 - the per-step h and d (held to the accumulator by the tests)
-from .validation import check_array, check_positive
+from .validation import check_array, check_field_types, check_positive
 
 RAD2DEG = 180.0 / math.pi
 
@@ -62,6 +62,7 @@ class MetricsConfig:
     pixel_ifov_rad: float | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "metrics ")
         check_positive("metrics d_ref", self.d_ref)
         check_positive("metrics safety_margin", self.safety_margin)
         if self.pixel_ifov_rad is not None:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_choice, check_positive
+from .validation import check_choice, check_field_types, check_positive
 
 GRAVITY = 9.81
 AIR_DENSITY = 1.225
@@ -47,6 +47,7 @@ class QuadrotorParams:
     source: str = ""
 
     def __post_init__(self) -> None:
+        check_field_types(self, "drone ")
         check_positive("mass", self.mass)
         if len(self.inertia) != 3:
             raise ValueError(f"inertia must have 3 entries, got {self.inertia!r}")

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .quadrotor import QuadrotorParams
-from .validation import check_positive
+from .validation import check_field_types, check_positive
 
 _MIN_DESIGN_TAU = 0.01
 _NO_SATURATION = (0, 0, 0)  # motors faster than this are designed for as if tau = 10 ms
@@ -64,6 +64,7 @@ class RateGains:
     d_cutoff_hz: float = 40.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "rate_gains ")
         for name in ("kp", "ki", "kd", "integral_limit"):
             object.__setattr__(self, name, _triple(name, getattr(self, name)))
         check_positive("d_cutoff_hz", self.d_cutoff_hz)

@@ -48,7 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_array, check_choice, check_positive
+from .validation import check_array, check_choice, check_field_types, check_positive
 
 MODES = ("closed_loop", "open_loop")
 
@@ -66,6 +66,7 @@ class ReferenceConfig:
     phase_hold_time: float | None = 5.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "reference ")
         check_positive("reference speed", self.speed)
         check_choice("reference mode", self.mode, MODES)
         lag = check_positive("reference lag_threshold", self.lag_threshold)

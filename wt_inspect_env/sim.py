@@ -39,7 +39,7 @@ import pybullet as p
 
 from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
 from .rate_control import Mixer, RateController, RateGains
-from .validation import check_array, check_positive
+from .validation import check_array, check_field_types, check_positive
 from .wind import WindField, make_wind
 
 @dataclass(frozen=True)
@@ -63,6 +63,7 @@ class SimConfig:
     rate_gains: RateGains | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "sim ")
         check_positive("ctrl_hz", self.ctrl_hz)
         check_positive("physics_hz", self.physics_hz)
         ratio = self.physics_hz / self.ctrl_hz

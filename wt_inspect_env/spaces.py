@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .quadrotor import QuadrotorParams, hover_thrust
-from .validation import check_array, check_positive
+from .validation import check_array, check_field_types, check_positive
 
 OBS_KEYS: tuple[str, ...] = (
     "position", "velocity_body", "quaternion", "body_rates",
@@ -51,6 +51,7 @@ class ActionScaling:
     max_thrust_factor: float = 2.0
 
     def __post_init__(self) -> None:
+        check_field_types(self, "action scaling ")
         check_positive("mass", self.mass)
         check_positive("max_rate", self.max_rate)
         check_positive("min_thrust_factor", self.min_thrust_factor, allow_zero=True)

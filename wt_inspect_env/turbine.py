@@ -57,7 +57,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from .atomic_io import write_bytes_atomic
-from .validation import check_array, check_finite, check_positive, check_unknown_options
+from .validation import check_array, check_field_types, check_finite, check_positive, check_unknown_options
 
 MAX_TRIANGLES = 1_000_000     # a mesh step that would need more triangles is rejected
 N_BLADES = 3
@@ -209,6 +209,7 @@ class TurbineSpec:
     preset: str | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "turbine ")
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
@@ -643,6 +644,7 @@ class MeshLoadOptions:
     rotor_axis: Any = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "turbine_mesh ")
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
         if not isinstance(self.path, (str, Path)):
             raise ValueError(f"turbine_mesh path must be a file name, got {self.path!r}")

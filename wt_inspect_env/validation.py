@@ -6,14 +6,27 @@ NumPy, CasADi or PyBullet.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 import math
+import re
 from typing import Any, Iterable
 
 import numpy as np
 
 
+def _not_a_number(value: Any) -> bool:
+    """True for values ``float()`` would accept but that are not numbers: text (``"5"`` would
+    pass validation and fail later, in arithmetic), bools (``True`` is not a length) and complex
+    numbers (whose imaginary part a cast would drop)."""
+    return isinstance(value, (str, bytes, bool, np.bool_, complex, np.complexfloating))
+
+
 def check_finite(name: str, value: Any) -> float:
-    """Return ``value`` as a float, or raise if it is not a finite real number."""
+    """Return ``value`` as a float, or raise if it is not a finite real number (strings, bools and
+    complex numbers are refused, not converted)."""
+    if _not_a_number(value):
+        raise ValueError(f"{name} must be a finite number, got {value!r}")
     try:
         v = float(value)
     except (TypeError, ValueError):
@@ -41,9 +54,17 @@ def check_range(name: str, value: Any, lo: float, hi: float) -> float:
 
 
 def check_array(name: str, value: Any, shape: tuple[int | None, ...] | None = None) -> np.ndarray:
-    """Return ``value`` as a finite float64 array of the given shape (``None`` = any length)."""
+    """Return ``value`` as a finite float64 array of the given shape (``None`` = any length).
+    Complex, text and bool arrays are refused rather than cast (a cast drops the imaginary part
+    or parses text)."""
     try:
-        arr = np.asarray(value, dtype=np.float64)
+        raw = value if isinstance(value, np.ndarray) else np.asarray(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array, got {value!r}") from None
+    if raw.dtype.kind in "cbUSO" and not (raw.dtype.kind == "O" and _all_real(raw)):
+        raise ValueError(f"{name} must be a real numeric array, got {value!r}")
+    try:
+        arr = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a numeric array, got {value!r}") from None
     if shape is not None:
@@ -69,3 +90,60 @@ def check_unknown_options(name: str, given: Iterable[str], known: Iterable[str])
     unknown = sorted(set(given) - set(known))
     if unknown:
         raise ValueError(f"unknown {name} option(s) {unknown}; valid: {sorted(set(known))}")
+
+
+def _all_real(arr: np.ndarray) -> bool:
+    """An object array (ragged input, Python objects) holds only real numbers."""
+    return all(isinstance(v, (int, float, np.integer, np.floating)) and not _not_a_number(v)
+               for v in arr.reshape(-1))
+
+
+_NUMERIC = {"float", "int"}
+_TOKEN = re.compile(r"[A-Za-z_][A-Za-z_0-9.]*")
+
+
+@functools.lru_cache(maxsize=None)
+def _field_kinds(cls: type) -> tuple[tuple[str, str], ...]:
+    """``(field name, kind)`` for the fields of dataclass ``cls`` whose annotation promises only
+    numbers (``number``: ``float``/``int``, optionally ``| None``), tuples of numbers
+    (``numbers``) or a bool (``bool``). Annotations are read as text (the modules use
+    ``from __future__ import annotations``), so no forward reference needs resolving."""
+    out = []
+    for f in dataclasses.fields(cls):
+        ann = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", str(f.type))
+        tokens = set(_TOKEN.findall(ann)) - {"None"}
+        if ann.startswith("tuple[") and tokens - {"tuple"} and tokens - {"tuple"} <= _NUMERIC:
+            out.append((f.name, "numbers"))
+        elif tokens and tokens <= _NUMERIC:
+            out.append((f.name, "number"))
+        elif tokens == {"bool"}:
+            out.append((f.name, "bool"))
+    return tuple(out)
+
+
+def check_field_types(obj: Any, prefix: str = "") -> None:
+    """Refuse, at construction, a value of the wrong kind in any numeric or bool field of the
+    dataclass ``obj`` (as its annotation states): text, bools and complex numbers for numbers
+    (``time_limit_s="5"`` would otherwise pass a ``float()`` check and fail in arithmetic many
+    steps later), anything but a bool for a bool. One generic check, called first in every
+    configuration dataclass's ``__post_init__``, so a new field is covered without code."""
+    for name, kind in _field_kinds(type(obj)):
+        value = getattr(obj, name)
+        label = f"{prefix}{name}"
+        if kind == "bool":
+            if not isinstance(value, (bool, np.bool_)):
+                raise ValueError(f"{label} must be a bool (true/false), got {value!r}")
+        elif kind == "number":
+            if _not_a_number(value):
+                raise ValueError(f"{label} must be a number, got {value!r}")
+        elif isinstance(value, (str, bytes)) or any(_not_a_number(v) for v in _iter(value)):
+            raise ValueError(f"{label} must be a sequence of numbers, got {value!r}")
+
+
+def _iter(value: Any) -> Iterable[Any]:
+    if value is None:
+        return ()
+    try:
+        return list(np.asarray(value, dtype=object).reshape(-1))
+    except (TypeError, ValueError):
+        return (value,)

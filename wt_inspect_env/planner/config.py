@@ -5,7 +5,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from ..validation import check_array, check_choice, check_positive, check_range, check_unknown_options
+from ..validation import (check_array, check_choice, check_field_types,
+                          check_positive, check_range, check_unknown_options)
 
 STANDOFF_MODES = ("horizontal", "normal")
 
@@ -72,6 +73,7 @@ class PlannerConfig:
     max_end_trim: float | None = None
 
     def __post_init__(self) -> None:
+        check_field_types(self, "planner ")
         def put(name: str, value: Any) -> None:
             object.__setattr__(self, name, value)
 
