@@ -38,7 +38,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .validation import check_array, check_field_types, check_finite, check_positive, check_range
+from .validation import check_array, check_choice, check_field_types, check_finite, check_positive, check_range
+
+#: What the incidence limit is measured against (see :class:`CameraConfig`).
+INCIDENCE_REFERENCES = ("ray", "optical_axis")
+#: Which points of a triangle must lie within the range limit (see :class:`CameraConfig`).
+RANGE_REFERENCES = ("vertices", "centroid")
 
 
 @dataclass(frozen=True)
@@ -49,6 +54,16 @@ class CameraConfig:
     them the image resolution on the surface (or its foreshortening) is too poor to inspect.
     The defaults 10 m and 80 deg are those of the paper's coverage evaluation, so coverage numbers
     stay comparable with it.
+
+    How those two limits are applied (the coverage rule, :mod:`wt_inspect_env.coverage`):
+    ``incidence_reference`` ``"ray"`` (default) measures the incidence between the triangle's normal
+    and the ray from its centroid to the optical centre - the angle at which the surface is actually
+    imaged; ``"optical_axis"`` between the normal and the reversed optical axis, as the authors'
+    coverage code did (a triangle at the image border then counts at an incidence up to half the
+    field of view larger than the ray's). ``range_reference`` ``"vertices"`` (default) requires all
+    three vertices within ``max_range``; ``"centroid"`` only the centre, as the authors' code did.
+    Both authors' options exist so that the ``paper-faithful`` scenario can score coverage by
+    their rule; the defaults are the stricter, physical reading.
     """
 
     focal_length_mm: float = 24.0
@@ -60,6 +75,8 @@ class CameraConfig:
     mount_pitch_deg: float = 0.0
     max_range: float = 10.0
     max_incidence_deg: float = 80.0
+    incidence_reference: str = "ray"
+    range_reference: str = "vertices"
 
     def __post_init__(self) -> None:
         check_field_types(self, "camera ")
@@ -77,6 +94,8 @@ class CameraConfig:
         inc = check_finite("camera max_incidence_deg", self.max_incidence_deg)
         if not 0.0 < inc < 90.0:
             raise ValueError(f"camera max_incidence_deg must lie in (0, 90), got {self.max_incidence_deg!r}")
+        check_choice("camera incidence_reference", self.incidence_reference, INCIDENCE_REFERENCES)
+        check_choice("camera range_reference", self.range_reference, RANGE_REFERENCES)
 
     # Derived intrinsics ------------------------------------------------------------------------
     @property
@@ -130,6 +149,8 @@ class GimbalCamera:
         self.width_px, self.height_px = float(c.width_px), float(c.height_px)
         self.max_range = float(c.max_range)
         self.cos_max_incidence = math.cos(math.radians(c.max_incidence_deg))
+        self.incidence_from_axis = c.incidence_reference == "optical_axis"
+        self.range_from_vertices = c.range_reference == "vertices"
 
     def pose(self, position, quaternion) -> tuple[np.ndarray, np.ndarray]:
         """Optical centre and ``R_world_from_cam`` for a drone at ``position`` with body attitude

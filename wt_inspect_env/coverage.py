@@ -7,12 +7,18 @@ cheap tests first, so that the expensive ones run only on the few survivors):
    centroid to the optical centre - is below ``max_incidence_deg``;
 2. its three vertices are within ``max_range`` of the optical centre (the centroid test runs first:
    a ball is convex, so a centroid out of range means a vertex out of range);
-3. its three vertices are in front of the camera and project inside the image;
+3. its three vertices are in front of the camera and project inside the image (then so does its
+   centre: the image is convex and a perspective projection maps the triangle onto a triangle);
 4. it is not occluded: the segment from the optical centre to a point just in front of the
    triangle (centroid + ``occlusion_eps`` * n; optionally also its vertices, pulled 10 % towards
    the centroid so that a vertex touching another part of the mesh is not reported as hidden)
    hits nothing. The paper's code skipped this test; a blade hiding behind the hub, the tower or
    another blade must not count as inspected.
+
+The authors' rule (the camera's ``incidence_reference="optical_axis"`` and
+``range_reference="centroid"``, :class:`~wt_inspect_env.camera.CameraConfig`) measures the incidence
+in test 1 against the reversed optical axis instead of the ray, and in test 2 checks the centre
+only; their code had no test 4 (the environment's ``occlusion=False``).
 
 Because the target point lies in front of the triangle's own plane and the camera faces that
 plane, the segment never touches the triangle itself, so the occluder can simply be the whole
@@ -208,7 +214,8 @@ class TriangleVisibility:
         self._c_sq = np.einsum("ij,ij->i", self.centroids, self.centroids)
 
     def candidates(self, origin: np.ndarray) -> np.ndarray:
-        """Indices passing the cheap tests (facing, incidence, centroid range)."""
+        """Indices passing the cheap tests (facing, incidence, centroid range; with the optical-axis
+        incidence rule the incidence needs the camera's attitude and is left to :meth:`in_view_batch`)."""
         o = np.asarray(origin, dtype=float).reshape(1, 3)
         return np.flatnonzero(self._cull(o)[0])
 
@@ -225,8 +232,11 @@ class TriangleVisibility:
         n_dot_v = (nrm[:, 0] * ox + nrm[:, 1] * oy + nrm[:, 2] * oz) - self._n_dot_c      # n . (o - c)
         c_dot_o = c[:, 0] * ox + c[:, 1] * oy + c[:, 2] * oz
         dist_sq = (self._c_sq - 2.0 * c_dot_o) + (ox * ox + oy * oy + oz * oz)         # |o - c|^2
+        in_range = (n_dot_v > 0.0) & (dist_sq <= cam.max_range * cam.max_range)
+        if cam.incidence_from_axis:
+            return in_range
         cos2 = cam.cos_max_incidence * cam.cos_max_incidence
-        return (n_dot_v > 0.0) & (n_dot_v * n_dot_v > cos2 * dist_sq) & (dist_sq <= cam.max_range * cam.max_range)
+        return in_range & (n_dot_v * n_dot_v > cos2 * dist_sq)
 
     def visible_indices(self, origin, R) -> np.ndarray:
         """Sorted indices of the triangles seen from a camera at ``origin`` with ``R_world_from_cam``."""
@@ -247,6 +257,12 @@ class TriangleVisibility:
         """
         cam = self.camera
         k_cams, tri = np.nonzero(self._cull(origins))        # pairs, grouped by camera, sorted
+        if cam.incidence_from_axis and len(tri):
+            # the authors' rule: the normal within max_incidence of the reversed optical axis -f
+            f, nrm = Rs[k_cams, :, 2], self.normals[tri]
+            cos_inc = -(nrm[:, 0] * f[:, 0] + nrm[:, 1] * f[:, 1] + nrm[:, 2] * f[:, 2])
+            facing = cos_inc > cam.cos_max_incidence
+            k_cams, tri = k_cams[facing], tri[facing]
         if len(tri) == 0:
             return [tri[:0] for _ in range(len(origins))]
         rel = self.vertices[tri] - origins[k_cams][:, None, :]              # (P, 3, 3) vertex - o
@@ -255,7 +271,8 @@ class TriangleVisibility:
         pc = [r0 * S[:, None, 0, j] + r1 * S[:, None, 1, j] + r2 * S[:, None, 2, j] for j in range(3)]
         z = pc[2]
         inside = (np.maximum(np.abs(pc[0]), np.abs(pc[1])) <= z) & (z > 0.0)
-        inside &= (r0 * r0 + r1 * r1 + r2 * r2) <= cam.max_range * cam.max_range
+        if cam.range_from_vertices:
+            inside &= (r0 * r0 + r1 * r1 + r2 * r2) <= cam.max_range * cam.max_range
         keep = inside.all(axis=1)
         k_cams, tri = k_cams[keep], tri[keep]
         bounds = np.searchsorted(k_cams, np.arange(len(origins) + 1))
