@@ -57,6 +57,22 @@ def observation_space() -> spaces.Dict:
     return spaces.Dict({k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()})
 
 
+def start_state(ideal_position: np.ndarray, point: np.ndarray, start_offset: Any, start_noise: float,
+                rng: np.random.Generator) -> np.ndarray:
+    """The model state an episode starts from: the ideal stand-off pose plus the fixed
+    ``start_offset`` plus ``N(0, start_noise)`` noise (drawn from ``rng`` only when positive, so
+    the seeded stream is unchanged without it), at rest, level, facing the inspection point.
+    One home for the single env and the vector env, which must start drone i identically."""
+    start = ideal_position + np.asarray(start_offset, dtype=float)
+    if start_noise > 0:
+        start = start + rng.normal(0.0, start_noise, 3)
+    a = point - start
+    state = np.zeros(10)
+    state[0:3] = start
+    state[6:10] = yaw_to_quat(math.atan2(a[1], a[0]))
+    return state
+
+
 class WindTurbineInspectionEnv(gym.Env):
     """Quadrotor wind-turbine inspection (see the module docstring and :class:`EnvConfig`)."""
 
@@ -126,13 +142,8 @@ class WindTurbineInspectionEnv(gym.Env):
         frac = (float(self.np_random.uniform(0.0, self.config.start_progress))
                 if self.config.start_progress > 0 else 0.0)
         self._sample = self.reference.reset(frac)
-        start = self._sample.ideal_position.copy()
-        if self.config.start_noise > 0:
-            start = start + self.np_random.normal(0.0, self.config.start_noise, 3)
-        a = self._sample.point - start
-        state = np.zeros(10)
-        state[0:3] = start
-        state[6:10] = yaw_to_quat(math.atan2(a[1], a[0]))
+        state = start_state(self._sample.ideal_position, self._sample.point, self.config.start_offset,
+                            self.config.start_noise, self.np_random)
         self.sim.reset(state)
         self.coverage.reset()
         self.metrics.reset()

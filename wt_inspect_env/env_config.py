@@ -15,7 +15,7 @@ from .camera import CameraConfig
 from .quadrotor import QuadrotorParams, get_preset
 from .reference import MODES as REFERENCE_MODES
 from .turbine import TurbineSpec
-from .validation import (check_choice, check_field_types, check_finite, check_positive,
+from .validation import (check_array, check_choice, check_field_types, check_finite, check_positive,
                          check_unknown_options)
 
 TASKS = ("full", "blade", "surface")
@@ -45,6 +45,17 @@ class RewardConfig:
         check_field_types(self, "reward ")
         for f in dataclasses.fields(self):
             check_positive(f"reward {f.name}", getattr(self, f.name), allow_zero=f.name != "distance_scale")
+
+
+def check_start_offset(value: Any, name: str = "start_offset") -> tuple[float, float, float]:
+    """A start offset [m] as three finite floats; a one-line ValueError naming ``name`` otherwise.
+
+    The one validation of the option, shared by :class:`EnvConfig`, the vector env and per-reset
+    options, so every path refuses the same input with the same message."""
+    if isinstance(value, (str, bytes)) or value is None:
+        raise ValueError(f"{name} must be 3 finite numbers [m], got {value!r}")
+    arr = check_array(name, value, (3,))
+    return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
 def _coerce(name: str, value: Any, cls: type) -> Any:
@@ -87,6 +98,9 @@ class EnvConfig:
         physics rates. time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
     start_noise: standard deviation [m] of a random offset of the start position from the ideal
         stand-off pose (0 for reproducible MPC evaluation; RL training uses > 0).
+    start_offset: a fixed 3-vector [m] (world frame) added to the ideal stand-off pose of every
+        start, before ``start_noise`` (deterministic: for tests and studies of starts away from
+        the path, e.g. ``(0, 0, 30)`` starts 30 m above it; the drone still faces the point).
     start_progress: each episode starts at a uniformly random point of the first ``start_progress``
         of the first phase's path (0: at its start; RL training on the blade task uses 0.9 so
         that short training episodes also see the transitions round the blade edges). Coverage
@@ -125,6 +139,7 @@ class EnvConfig:
     camera_hz: float = 10.0
     time_limit_s: float | None = None
     start_noise: float = 0.0
+    start_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_progress: float = 0.0
     working_margin: float = 30.0
     occlusion: bool = True
@@ -173,6 +188,7 @@ class EnvConfig:
         if self.time_limit_s is not None:
             check_positive("time_limit_s", self.time_limit_s)
         check_positive("start_noise", self.start_noise, allow_zero=True)
+        put("start_offset", check_start_offset(self.start_offset))
         check_positive("start_progress", self.start_progress, allow_zero=True)
         if self.start_progress >= 1.0:
             raise ValueError(f"start_progress must be below 1, got {self.start_progress!r}")

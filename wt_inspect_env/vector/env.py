@@ -33,8 +33,7 @@ from gymnasium.vector.utils import batch_space
 
 from ..camera import GimbalCamera
 from ..coverage import TriangleVisibility
-from ..dynamics import yaw_to_quat
-from ..env import observation_space
+from ..env import observation_space, start_state
 from ..env_config import EnvConfig
 from ..metrics import MetricsConfig
 from ..mission import build_mission
@@ -71,7 +70,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                              "single WindTurbineInspectionEnv instead)")
         self.render_mode = None
         for key, value in options.items():
-            if isinstance(value, (list, tuple)) and key not in ("camera", "reward", "planner", "turbine"):
+            if isinstance(value, (list, tuple)) and key not in ("camera", "reward", "planner", "turbine",
+                                                                "start_offset"):
                 raise ValueError(f"per-drone {key} is not supported (got a {type(value).__name__} of "
                                  f"{len(value)}); only winds=[...] varies per drone - make one vector env "
                                  "per turbine, task or option set")
@@ -187,8 +187,11 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         n = self.num_envs
+        raw = actions if isinstance(actions, np.ndarray) else np.asarray(actions)
+        if raw.dtype.kind in "cbUS":   # a cast would drop the imaginary part or parse text
+            raise ValueError(f"actions must be a real numeric array of shape ({n}, 4), got dtype {raw.dtype}")
         try:
-            a = np.asarray(actions, dtype=np.float64)
+            a = np.asarray(raw, dtype=np.float64)
         except (TypeError, ValueError):
             raise ValueError(f"actions must be a numeric array of shape ({n}, 4), got {actions!r}") from None
         if a.shape != (n, 4):
@@ -280,13 +283,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         frac = float(rng.uniform(0.0, cfg.start_progress)) if cfg.start_progress > 0 else 0.0
         self.reference.reset(i, frac)
         s = self.reference.sample
-        start = s.ideal_position[i].copy()
-        if cfg.start_noise > 0:
-            start = start + rng.normal(0.0, cfg.start_noise, 3)
-        a = s.point[i] - start
-        state = np.zeros(10)
-        state[0:3] = start
-        state[6:10] = yaw_to_quat(math.atan2(a[1], a[0]))
+        state = start_state(s.ideal_position[i], s.point[i], cfg.start_offset, cfg.start_noise, rng)
         self.sim.reset_drone(i, state)
         self._reset_state[i] = state
         self.counts[i] = 0
