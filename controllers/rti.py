@@ -698,7 +698,14 @@ class RTISolver:
         w, dw = self._w, self._dw
         t0 = time.perf_counter()
         predicted = False
-        if self._direct is not None:
+        status = None
+        if not np.all(np.isfinite(w)):
+            # A non-finite warm start (a diverged plan, a corrupted guess) makes ill-posed QP
+            # bounds, which CasADi's plugin refuses by raising; it is a failed step like any other.
+            code, iterations, cost, status = -1, 0, float("nan"), "NONFINITE_ITERATE"
+            if self._direct is not None:
+                self._direct["base"] = None
+        elif self._direct is not None:
             d = self._direct
             np.subtract(x0, w[:nx], out=self._dx0)
             if d.get("base") is not None and d["qp"].predict(d["dx0_ptr"], d["dw_ptr"]):
@@ -710,12 +717,16 @@ class RTISolver:
         else:
             np.subtract(x0, w[:nx], out=self._lbx[:nx])
             self._ubx[:nx] = self._lbx[:nx]
-            stats = self._solve_qp()
-            code, iterations = int(stats.get("return_status", -1)), int(stats.get("iter_count", -1))
+            try:
+                stats = self._solve_qp()
+                code, iterations = int(stats.get("return_status", -1)), int(stats.get("iter_count", -1))
+            except RuntimeError as exc:   # CasADi's checks of ill-posed QP data (NaN in a bound)
+                code, iterations, status = -1, 0, "QP_ERROR: " + str(exc).strip().splitlines()[-1][:120]
             cost = float(self._cost_buf[0])
         elapsed = (time.perf_counter() - t0) * 1e3
         self._prepared = False
-        status = HPIPM_STATUS.get(code, f"HPIPM_{code}")
+        if status is None:
+            status = HPIPM_STATUS.get(code, f"HPIPM_{code}")
         ok = code == 0 and bool(np.all(np.isfinite(dw)))
         if code == 0 and not ok:
             status = "NONFINITE"

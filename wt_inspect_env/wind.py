@@ -19,6 +19,13 @@ Fields provided (the paper's experiment is :class:`GustWind` with its defaults a
 * :class:`FunctionWind` - wraps any user callable with the same validation.
 
 :func:`make_wind` builds a field from a small dict/str spec (command lines, scenario files).
+
+Physical bound: every mean speed (and a constant wind's magnitude) must be at most
+:data:`MAX_WIND_SPEED` = 50 m/s, the reference wind speed V_ref of IEC 61400-1 turbine class I
+(the 10-minute mean at hub height with a 50-year return period that the strongest class of turbine
+is designed to survive). No inspection flight happens anywhere near it - drone inspections stop
+around 10-12 m/s - so a larger value is a typo (``--winds 1e9``, a unit mix-up), refused rather than
+flown.
 """
 from __future__ import annotations
 
@@ -33,6 +40,16 @@ from .validation import (check_array, check_choice, check_finite, check_positive
 
 
 FT = 0.3048  # metres per foot (MIL-F-8785C is written in feet)
+MAX_WIND_SPEED = 50.0  # [m/s] IEC 61400-1 class I V_ref; see the module docstring
+
+
+def check_wind_speed(name: str, value: Any, *, allow_zero: bool = True) -> float:
+    """A mean wind speed [m/s] in ``[0, MAX_WIND_SPEED]`` (``(0, ...]`` without ``allow_zero``)."""
+    v = check_positive(name, value, allow_zero=allow_zero)
+    if v > MAX_WIND_SPEED:
+        raise ValueError(f"{name} must be at most {MAX_WIND_SPEED:g} m/s (IEC 61400-1 class I reference "
+                         f"wind speed), got {value!r}")
+    return v
 
 
 def _unit(name: str, vec: Any) -> np.ndarray:
@@ -134,6 +151,7 @@ class ConstantWind(WindField):
 
     def __init__(self, velocity: Any = (0.0, 0.0, 0.0), seed: Any = None) -> None:
         self.velocity = check_array("ConstantWind velocity", velocity, (3,)).copy()
+        check_wind_speed("ConstantWind speed |velocity|", float(np.linalg.norm(self.velocity)))
         super().__init__(seed)
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
@@ -154,10 +172,10 @@ class GustWind(WindField):
     def __init__(self, mean_speed: float = 4.0, direction: Any = (0.0, 1.0, 0.0),
                  period: float = 10.0, std: float = 0.5, phase: float = 0.0,
                  seed: Any = None) -> None:
-        self.mean_speed = check_positive("GustWind mean_speed", mean_speed, allow_zero=True)
+        self.mean_speed = check_wind_speed("GustWind mean_speed", mean_speed)
         self.direction = _unit("GustWind direction", direction)
         self.period = check_positive("GustWind period", period)
-        self.std = check_positive("GustWind std", std, allow_zero=True)
+        self.std = check_wind_speed("GustWind std", std)
         self.phase = check_finite("GustWind phase", phase)
         self.amplitude = self.std * math.sqrt(2.0)
         super().__init__(seed)
@@ -233,7 +251,7 @@ class DrydenWind(WindField):
                  altitude: float = 100.0, w20: float | None = None,
                  sigma: Any = None, length_scales: Any = None, include_mean: bool = True,
                  sample_dt: float = 0.01, seed: Any = None) -> None:
-        self.mean_speed = check_positive("DrydenWind mean_speed", mean_speed)
+        self.mean_speed = check_wind_speed("DrydenWind mean_speed", mean_speed, allow_zero=False)
         d = _unit("DrydenWind direction", direction)
         d_h = np.array([d[0], d[1], 0.0])
         if np.linalg.norm(d_h) < 1e-9:
@@ -361,7 +379,7 @@ class ShearWind(WindField):
     def __init__(self, ref_speed: float = 4.0, ref_height: float = 10.0, alpha: float = 1.0 / 7.0,
                  direction: Any = (0.0, 1.0, 0.0), ground_height: float = 0.0,
                  seed: Any = None) -> None:
-        self.ref_speed = check_positive("ShearWind ref_speed", ref_speed, allow_zero=True)
+        self.ref_speed = check_wind_speed("ShearWind ref_speed", ref_speed)
         self.ref_height = check_positive("ShearWind ref_height", ref_height)
         self.alpha = check_positive("ShearWind alpha", alpha, allow_zero=True)
         if self.alpha > 1.0:

@@ -31,6 +31,7 @@ from typing import Any, Mapping
 
 from wt_inspect_env.env_config import EnvConfig
 from wt_inspect_env.validation import check_choice, check_unknown_options
+from wt_inspect_env.wind import check_wind_speed
 
 WIND_TYPES = ("gust", "dryden")
 
@@ -111,9 +112,7 @@ def paper_numbers(scenario: str, wind: float, controller: str) -> dict[str, floa
 def wind_spec(wind: float, wind_type: str = "gust", wind_options: Mapping[str, Any] | None = None) -> Any:
     """The wind spec (for :func:`~wt_inspect_env.wind.make_wind`) of a mean speed [m/s]."""
     check_choice("wind_type", wind_type, WIND_TYPES)
-    w = float(wind)
-    if not math.isfinite(w) or w < 0:
-        raise ValueError(f"wind must be a non-negative finite speed [m/s], got {wind!r}")
+    w = check_wind_speed("wind speed", wind)   # [0, MAX_WIND_SPEED]: --winds 1e9 is refused here
     opts = dict(wind_options or {})
     if "type" in opts or "mean_speed" in opts:
         raise ValueError(f"wind_options must not set 'type' or 'mean_speed' (use wind_type and the wind "
