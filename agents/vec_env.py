@@ -26,7 +26,7 @@ from gymnasium import spaces
 from wt_inspect_env.dynamics import quat_to_rotmat_np
 from wt_inspect_env.spaces import ActionScaling
 
-from .wrappers import AgentSpec, ShapingConfig
+from .wrappers import AgentSpec, ShapingConfig, camera_heading
 
 
 class BatchedAgentInterface:
@@ -82,6 +82,10 @@ class BatchedAgentInterface:
                 self._obs[k] = np.zeros((self.n,) + v.shape[1:])
             self._obs[k][idx] = v
         self._R[idx] = quat_to_rotmat_np(o["quaternion"])
+
+    def heading_cos(self, i: int) -> float:
+        """Cosine of drone ``i``'s camera heading error at its last update (the scalar formula)."""
+        return camera_heading(self._R[i], self._obs["position"][i], self._obs["point"][i])[1]
 
     def features(self) -> np.ndarray:
         """(n, F) float32 features of every drone's last update (and last noted action)."""
@@ -235,6 +239,9 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                     if self._coarse_w > 0.0:
                         e2 = np.einsum("ij,ij->i", self.iface.err[fin], self.iface.err[fin])
                         total[fin] += np.where(term[fin], 0.0, self._coarse_w / (1.0 + self._coarse_k * e2))
+                    if self.shaping.centering_fine_weight > 0.0:
+                        for i in fin[~term[fin]].tolist():
+                            total[i] += self.shaping.centering_fine(self.venv.dt, self.iface.heading_cos(i))
                     feats = self.iface.features()
                     fm = info["final_info"]["metrics"]
                     for i in fin.tolist():
@@ -249,10 +256,13 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                     self.iface.update(fin, {k: v[fin] for k, v in obs.items()})
                 if len(cont):
                     self.iface.update(cont, {k: v[cont] for k, v in obs.items()})
+                    lc = cont[live[cont]]
                     if self._coarse_w > 0.0:
-                        lc = cont[live[cont]]
                         e2 = np.einsum("ij,ij->i", self.iface.err[lc], self.iface.err[lc])
                         total[lc] += self._coarse_w / (1.0 + self._coarse_k * e2)
+                    if self.shaping.centering_fine_weight > 0.0:
+                        for i in lc.tolist():
+                            total[i] += self.shaping.centering_fine(self.venv.dt, self.iface.heading_cos(i))
                 done |= ended
                 raw = obs
             self._raw = raw

@@ -212,6 +212,32 @@ def test_coarse_distance_shaping_is_added_and_reported():
         ShapingConfig(distance_coarse_scale=0.0)
 
 
+def test_fine_centering_shaping_follows_the_camera_heading_kernel():
+    from agents.wrappers import ShapingConfig
+    cfg = ShapingConfig(centering_fine_weight=3.0, centering_fine_scale_deg=5.0)
+    # the kernel itself: 1 when centred, 1/e at the scale, from the cosine of the heading error
+    assert cfg.centering_fine(0.01, 1.0) == pytest.approx(0.03)
+    assert cfg.centering_fine(0.01, math.cos(math.radians(5.0))) == pytest.approx(0.03 / math.e)
+    assert cfg.centering_fine(0.01, math.cos(math.radians(20.0))) < 0.03 * 1e-6
+    spec = AgentSpec(action_repeat=1)
+    plain = InspectionAgentEnv(gym.make(SURFACE, wind="none", start_noise=2.0), spec)
+    shaped = InspectionAgentEnv(gym.make(SURFACE, wind="none", start_noise=2.0), spec, cfg)
+    plain.reset(seed=5)
+    shaped.reset(seed=5)
+    _, r0, *_, i0 = plain.step(np.zeros(4))
+    _, r1, *_, i1 = shaped.step(np.zeros(4))
+    # the encoder's heading is the env's own camera heading (the centering metric's h)
+    h = shaped.encoder.heading_cos()
+    u = shaped.env.unwrapped
+    assert float(np.squeeze(i1["reward_terms"]["centering"])) == pytest.approx(u.config.reward.centering * u.dt * h)
+    assert i1["shaping_reward"] == pytest.approx(cfg.centering_fine(u.dt, h))
+    assert r1 == pytest.approx(r0 + i1["shaping_reward"])
+    for bad in ({"centering_fine_weight": -1.0}, {"centering_fine_scale_deg": 0.0},
+                {"centering_fine_scale_deg": 90.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            ShapingConfig(**bad)
+
+
 def test_episode_variants_draw_reproducibly_by_weight_and_check_spaces():
     from agents.wrappers import EpisodeVariants
     envs = [InspectionAgentEnv(gym.make(SURFACE, wind=w), AgentSpec()) for w in ("none", "gust")]

@@ -233,6 +233,7 @@ def test_batched_agent_interface_equals_the_scalar_encoder_and_decoder():
             batch.update(np.arange(5), obs)
             scalar = [e.update({k: v[i] for k, v in obs.items()}) for i, e in enumerate(encs)]
         np.testing.assert_array_equal(batch.features(), np.stack(scalar))
+        assert [batch.heading_cos(i) for i in range(5)] == [e.heading_cos() for e in encs]
         np.testing.assert_array_equal(batch.decode(u, obs["quaternion"]),
                                       np.stack([dec(u[i], obs["quaternion"][i]) for i in range(5)]))
 
