@@ -12,14 +12,27 @@ picklable (a module-level function or class; Ray also ships lambdas via cloudpic
 
 Progress: the local backend shows an overall bar plus one bar per active run (simulated seconds,
 reported by the workers through a queue); the Ray backend shows the overall bar.
+
+Orphans: local pool workers die with the process that started them, however it ends. On Linux
+each worker asks the kernel for SIGKILL when its parent dies (``prctl(PR_SET_PDEATHSIG)``), and on
+every platform a daemon thread in the worker exits it once its parent is gone (reparenting changes
+``os.getppid()``), so a SIGKILLed ``wt-inspect evaluate`` leaves no worker behind - and with the
+workers gone the resource tracker, which exits when the last holder of its pipe does, follows.
+SIGTERM of the parent is turned into :class:`Terminated` (a ``KeyboardInterrupt``) while a pool
+runs, so the pool is terminated and the finished runs' files are written as on Ctrl-C.
 """
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import ctypes
 import multiprocessing as mp
 import os
 import queue as queue_mod
+import signal
+import sys
 import threading
+import time
 from typing import Any, Callable, Mapping, Sequence
 
 from .runner import RunResult, RunSpec, execute
@@ -92,9 +105,54 @@ def _note(result: RunResult) -> str:
 _WORKER_QUEUE: Any = None   # set in each pool worker by the initializer (per-process, not shared state)
 
 
-def _init_worker(q: Any) -> None:
+PR_SET_PDEATHSIG = 1   # <linux/prctl.h>
+PARENT_POLL_S = 0.5
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM received while runs were in flight (handled like Ctrl-C: the pool is stopped)."""
+
+
+def die_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
+    """Make this process end when ``parent_pid`` does: ``PR_SET_PDEATHSIG`` on Linux, and on every
+    platform a daemon thread that polls ``os.getppid()`` (an orphan is reparented) and exits.
+    The poll also covers a parent that died before the ``prctl`` call."""
+    if sys.platform.startswith("linux"):
+        with contextlib.suppress(OSError, AttributeError):
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL, 0, 0, 0)
+    if os.getppid() != parent_pid:
+        os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(poll_s)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Any:
+    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (outside the
+    main thread, where no handler can be installed, nothing changes)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise Terminated(f"signal {signum}")
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _init_worker(q: Any, parent_pid: int | None = None) -> None:
     global _WORKER_QUEUE
     _WORKER_QUEUE = q
+    if parent_pid is not None:
+        die_with_parent(parent_pid)
 
 
 def _local_task(spec: RunSpec, factory: Any, record: bool) -> RunResult:
@@ -140,30 +198,31 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None
         thread = threading.Thread(target=pump, daemon=True)
         thread.start()
         pool = cf.ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=ctx,
-                                      initializer=_init_worker, initargs=(q,))
-        try:
-            futures = {pool.submit(_local_task, s, factories.get(s.controller), record): s for s in specs}
-            for fut in cf.as_completed(futures):
-                res = fut.result()
-                on_result(res)
-                board.finish(futures[fut].filename, _note(res))
-        except BaseException:
-            # Interrupted (or a run failed): stop the runs in flight now rather than letting the
-            # pool finish them - workers write nothing, so killing them loses no finished result.
-            procs = list((getattr(pool, "_processes", None) or {}).values())
-            pool.shutdown(wait=False, cancel_futures=True)
-            for p in procs:
-                if p.is_alive():
-                    p.terminate()
-            for p in procs:
-                p.join(timeout=5.0)
-            raise
-        else:
-            pool.shutdown(wait=True)
-        finally:
-            stop.set()
-            thread.join(timeout=2.0)
-            q.close()
+                                      initializer=_init_worker, initargs=(q, os.getpid()))
+        with sigterm_as_interrupt():
+            try:
+                futures = {pool.submit(_local_task, s, factories.get(s.controller), record): s for s in specs}
+                for fut in cf.as_completed(futures):
+                    res = fut.result()
+                    on_result(res)
+                    board.finish(futures[fut].filename, _note(res))
+            except BaseException:
+                # Interrupted (or a run failed): stop the runs in flight now rather than letting the
+                # pool finish them - workers write nothing, so killing them loses no finished result.
+                procs = list((getattr(pool, "_processes", None) or {}).values())
+                pool.shutdown(wait=False, cancel_futures=True)
+                for p in procs:
+                    if p.is_alive():
+                        p.terminate()
+                for p in procs:
+                    p.join(timeout=5.0)
+                raise
+            else:
+                pool.shutdown(wait=True)
+            finally:
+                stop.set()
+                thread.join(timeout=2.0)
+                q.close()
     finally:
         board.close()
 
@@ -197,26 +256,27 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
     board = ProgressBoard(len(specs), progress)
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     refs: dict[Any, RunSpec] = {}
-    try:
-        refs = {remote.remote(s, factories.get(s.controller), record): s for s in specs}
-        pending = list(refs)
-        while pending:
-            done, pending = ray.wait(pending, num_returns=1)
-            for ref in done:
-                res = ray.get(ref)
-                on_result(res)
-                board.finish(refs[ref].filename, _note(res))
-    except BaseException:
-        for ref in refs:
-            try:
-                ray.cancel(ref, force=True)
-            except Exception:   # already finished or gone
-                pass
-        raise
-    finally:
-        board.close()
-        if started:
-            ray.shutdown()
+    with sigterm_as_interrupt():   # SIGTERM: cancel the tasks and stop the local Ray instance
+        try:
+            refs = {remote.remote(s, factories.get(s.controller), record): s for s in specs}
+            pending = list(refs)
+            while pending:
+                done, pending = ray.wait(pending, num_returns=1)
+                for ref in done:
+                    res = ray.get(ref)
+                    on_result(res)
+                    board.finish(refs[ref].filename, _note(res))
+        except BaseException:
+            for ref in refs:
+                try:
+                    ray.cancel(ref, force=True)
+                except Exception:   # already finished or gone
+                    pass
+            raise
+        finally:
+            board.close()
+            if started:
+                ray.shutdown()
 
 
 def _ray_task(spec: RunSpec, factory: Any, record: bool) -> RunResult:
