@@ -16,6 +16,12 @@ registry (``wt-inspect evaluate --help``) does not build CasADi functions.
 * ``nmpc`` - the conventional NMPC baseline; ``pampc`` - the perception-aware MPC baseline (its
   projection guard ``image_plane_guard`` is scaled with d_ref, 0.5 m at the paper's 7 m, so the
   guard distorts the projection by the same relative amount in the lab scenario).
+* ``nmpc-authors`` / ``pampc-authors`` - the two baselines as the authors ran them, with their
+  quaternion yaw reference and their camera axis (:mod:`controllers.authors_baselines`), for the
+  ``paper-faithful`` scenario.
+
+The VT-NMPC keeps its 0.01 s shooting interval at any control rate (``control_dt`` is the
+environment's period), as the paper's 200 Hz loop ran a 30 x 0.01 s horizon.
 """
 from __future__ import annotations
 
@@ -26,7 +32,7 @@ from wt_inspect_env.policy import PolicyEntry
 
 def _vtnmpc_policy(env: Any, **options: Any) -> Any:
     from .vtnmpc import VTNMPCPolicy
-    return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, dt=env.dt, **options)
+    return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt, **options)
 
 
 def _vtnmpc_plus_policy(env: Any) -> Any:
@@ -58,3 +64,23 @@ vtnmpc_plus = PolicyEntry(_vtnmpc_plus_policy,
 nmpc = PolicyEntry(_nmpc_policy, "conventional NMPC baseline (stand-off position + yaw tracking)",
                    display_name="NMPC")
 pampc = PolicyEntry(_pampc_policy, "perception-aware MPC baseline (Falanga et al. 2018)", display_name="PAMPC")
+
+
+def _nmpc_authors_policy(env: Any) -> Any:
+    from .authors_baselines import AuthorsNMPCPolicy
+    return AuthorsNMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt)
+
+
+def _pampc_authors_policy(env: Any) -> Any:
+    from .authors_baselines import AuthorsPAMPCPolicy
+    from .pampc import PAMPCConfig
+    guard = PAMPCConfig.image_plane_guard * env.config.standoff / 7.0
+    return AuthorsPAMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt,
+                              camera=env.config.camera, image_plane_guard=guard)
+
+
+nmpc_authors = PolicyEntry(_nmpc_authors_policy,
+                           "NMPC as the authors ran it: quaternion yaw reference that flips sign at 360 deg wraps",
+                           display_name="NMPC (authors' yaw bug)")
+pampc_authors = PolicyEntry(_pampc_authors_policy, "PAMPC as the authors ran it: camera axis body up",
+                            display_name="PAMPC (authors' camera axis)")

@@ -98,3 +98,16 @@ def test_rule_options_are_validated(field, value):
         CameraConfig(**{field: value})
     with pytest.raises(ValueError, match=field):
         EnvConfig(camera={field: value})
+
+
+def test_paper_faithful_scenario_is_the_authors_setup():
+    from wt_inspect.evaluation.scenarios import env_options, paper_numbers
+    cfg = EnvConfig.from_kwargs(**env_options("paper-faithful", 4.0))
+    assert cfg.camera.focal_length_mm == 35.0 and cfg.camera.sensor_width_mm == 23.5
+    assert (cfg.camera.incidence_reference, cfg.camera.range_reference) == ("optical_axis", "centroid")
+    assert cfg.camera.max_incidence_deg == 80.0 and cfg.camera.max_range == 10.0 and cfg.occlusion is False
+    assert (cfg.reference_mode, cfg.reference_speed, cfg.ctrl_hz) == ("open_loop", 0.7, 200.0)
+    assert (cfg.task, cfg.standoff, cfg.safety_margin) == ("full", 7.0, 1.0)
+    # the paper's numbers stand beside the authors' baselines and both VT-NMPC weight sets
+    assert paper_numbers("paper-faithful", 4.0, "nmpc-authors")["coverage"] == 0.916
+    assert paper_numbers("paper-faithful", 4.0, "vtnmpc-later") == paper_numbers("paper", 4.0, "vtnmpc")

@@ -206,6 +206,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                      f"{r['wall_time']:.0f} s |")
     paper_src = {"paper": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text (distances; "
                           "100 % coverage for all at 0 m/s)",
+                 "paper-faithful": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text, beside "
+                                   "the fixed and the authors' baselines alike and both VT-NMPC weight sets",
                  "lab": "the paper's Table \"Statistical analysis of the experimental results\" (mean of three "
                         "real flights with a 4 m/s blowing tunnel; this is a simulation of that setup)"}
     lines += ["", "## How these numbers were made", "",
@@ -226,7 +228,7 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
               f"{ctx.wall_time_s:.0f} s ({ctx.n_ran} runs executed, {ctx.n_resumed} resumed from earlier run files)."]
     if ctx.command:
         lines.append(f"- Command: `{ctx.command}`")
-    lines += [f"- {n}" for n in ctx.notes]
+    lines += [f"- {n}" for n in (*sc.notes, *ctx.notes)]
     return "\n".join(lines) + "\n"
 
 
