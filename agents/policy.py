@@ -4,8 +4,12 @@ A model ``DIR/NAME.zip`` is saved with a sidecar ``DIR/NAME.json`` (:func:`save_
 what the network alone does not know: the :class:`~agents.wrappers.AgentSpec` (features, residual
 action, action repeat), the observation normalisation statistics of training (VecNormalize's
 running mean / variance, clip, epsilon - plain numbers, no pickle needed to deploy) and the
-environment interface it was trained on. ``DIR/NAME.vecnormalize.pkl`` (stable-baselines3's own
-format, with the reward statistics too) is only needed to *resume* training.
+environment interface it was trained on. ``DIR/NAME.vecnormalize.json`` (every VecNormalize
+statistic, the reward's too, as JSON) is only needed to *resume* training.
+
+Nothing is unpickled from a model file: :mod:`agents.safe_load` rebuilds what stable-baselines3
+would unpickle from the sidecar and refuses a file that would still need it, unless the caller
+trusts the file (``trust_model``).
 
 :func:`load_sb3_policy` rebuilds the exact training-time pipeline around the network: Dict
 observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> network
@@ -28,6 +32,7 @@ from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice
 
+from .safe_load import load_sb3_model, save_vecnormalize, vecnormalize_path, verify_shipped
 from .wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction
 
 ALGOS: tuple[str, ...] = ("ppo", "sac")
@@ -42,11 +47,11 @@ def algo_class(algo: str):
 
 
 def sidecar_paths(model_path: str | Path) -> tuple[Path, Path, Path]:
-    """``(NAME.zip, NAME.json, NAME.vecnormalize.pkl)`` for a model path given with or without
+    """``(NAME.zip, NAME.json, NAME.vecnormalize.json)`` for a model path given with or without
     its ``.zip`` suffix."""
     p = Path(model_path)
     stem = p.with_suffix("") if p.suffix == ".zip" else p
-    return stem.with_suffix(".zip"), stem.with_suffix(".json"), Path(str(stem) + ".vecnormalize.pkl")
+    return stem.with_suffix(".zip"), stem.with_suffix(".json"), vecnormalize_path(stem)
 
 
 def env_interface(env) -> dict[str, float]:
@@ -58,14 +63,14 @@ def env_interface(env) -> dict[str, float]:
 
 def save_agent(model, path: str | Path, *, algo: str, spec: AgentSpec, vecnormalize=None,
                interface: Mapping[str, float], extra: Mapping[str, Any] | None = None) -> Path:
-    """Save ``model`` as ``NAME.zip`` with its ``NAME.json`` sidecar (and ``NAME.vecnormalize.pkl``
+    """Save ``model`` as ``NAME.zip`` with its ``NAME.json`` sidecar (and ``NAME.vecnormalize.json``
     when a VecNormalize is given). Returns the ``.zip`` path."""
-    zip_path, json_path, pkl_path = sidecar_paths(path)
+    zip_path, json_path, norm_path = sidecar_paths(path)
     zip_path.parent.mkdir(parents=True, exist_ok=True)
     model.save(str(zip_path))
     norm = None
     if vecnormalize is not None:
-        vecnormalize.save(str(pkl_path))
+        save_vecnormalize(vecnormalize, norm_path)
         if vecnormalize.norm_obs:
             norm = {"mean": vecnormalize.obs_rms.mean.tolist(), "var": vecnormalize.obs_rms.var.tolist(),
                     "clip_obs": float(vecnormalize.clip_obs), "epsilon": float(vecnormalize.epsilon)}
@@ -76,8 +81,10 @@ def save_agent(model, path: str | Path, *, algo: str, spec: AgentSpec, vecnormal
 
 
 def load_sidecar(path: str | Path) -> dict[str, Any]:
-    """The sidecar document of a saved model (ValueError naming the file if missing or invalid)."""
+    """The sidecar document of a saved model (ValueError naming the file if missing or invalid;
+    a shipped model's files are checked against their digests first)."""
     _, json_path, _ = sidecar_paths(path)
+    verify_shipped(json_path)
     if not json_path.is_file():
         raise ValueError(f"model sidecar {str(json_path)!r} not found (saved by agents.policy.save_agent "
                          "next to the model: it holds the feature spec and normalisation)")
@@ -154,14 +161,15 @@ class SB3Policy(Policy):
         return self.decoder(self._held, o["quaternion"])
 
 
-def load_sb3_policy(algo: str, path: str | Path, env=None) -> SB3Policy:
+def load_sb3_policy(algo: str, path: str | Path, env=None, *, trust_model: bool = False) -> SB3Policy:
     """Load ``path`` (``NAME.zip`` with its ``NAME.json`` sidecar) as a controller for ``env``.
 
     The returned object takes the env's raw Dict observation and returns a normalised env action
     (``reset / act / predict``). The stand-off, control period and airframe come from ``env`` when
     given (features are relative to *its* ideal pose; hover thrust from *its* mass), else from the
-    sidecar. ValueError if ``algo`` is not one of ``ppo, sac``, the file is missing, or the sidecar
-    says another algorithm.
+    sidecar. ValueError if ``algo`` is not one of ``ppo, sac``, the file is missing, the sidecar
+    says another algorithm, or the file would need unpickling (:mod:`agents.safe_load`) and
+    ``trust_model`` is False.
     """
     cls = algo_class(algo)
     zip_path, _, _ = sidecar_paths(path)
@@ -177,7 +185,7 @@ def load_sb3_policy(algo: str, path: str | Path, env=None) -> SB3Policy:
     else:
         iface = doc["env_interface"]
         scaling = ActionScaling(mass=iface["mass"], max_rate=iface["max_rate"])
-    model = cls.load(str(zip_path), device="cpu")
+    model = load_sb3_model(cls, zip_path, doc, trust_model=trust_model, device="cpu")
     return SB3Policy(model, spec, scaling, standoff=iface["standoff"], dt=iface["dt"],
                      obs_normalization=doc.get("obs_normalization"), algo=algo)
 

@@ -19,10 +19,10 @@ from wt_inspect_env.wind import make_wind
 from wt_inspect_env.validation import check_choice, check_positive, check_unknown_options
 
 from .policy import ALGOS
+from .safe_load import ACTIVATIONS
 from .wrappers import AgentSpec, ShapingConfig
 
 RECIPE_DIR = Path(__file__).resolve().parent / "recipes"
-ACTIVATIONS: tuple[str, ...] = ("tanh", "relu", "elu", "leaky_relu")
 NORMALIZE_KEYS: tuple[str, ...] = ("obs", "reward", "clip_obs", "clip_reward")
 
 

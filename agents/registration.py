@@ -4,6 +4,8 @@ Entry points of the group ``wt_inspect.controllers`` (see ``pyproject.toml``) wh
 :class:`~wt_inspect_env.policy.PolicyEntry` objects below; the evaluation harness finds them
 through ``importlib.metadata`` and never imports this package by name. Nothing heavy is imported
 here: torch and stable-baselines3 load only when a model is (:func:`agents.policy.load_sb3_policy`).
+Both entries take ``trust_model`` (``--trust-model``): without it a model file that would need
+unpickling is refused (:mod:`agents.safe_load`), already by ``check`` before any run starts.
 """
 from __future__ import annotations
 
@@ -13,8 +15,7 @@ from typing import Any
 
 from wt_inspect_env.policy import PolicyEntry
 
-
-MODELS_DIR = Path(__file__).parent / "models"
+from .safe_load import MODELS_DIR, verify_shipped
 
 
 def shipped_models() -> list[str]:
@@ -33,9 +34,24 @@ def resolve_model_path(arg: str) -> Path:
     raise ValueError(f"model {arg!r} is neither a file nor a shipped model; shipped: {', '.join(shipped_models())}")
 
 
-def check_model_file(path: str) -> None:
-    """ValueError naming the path unless the model file (or shipped name) exists (nothing is loaded)."""
-    resolve_model_path(path)
+def _check(algo: str):
+    def check(path: str, trust_model: bool = False) -> None:
+        """ValueError naming the path unless the model file (or shipped name) exists, a shipped
+        model matches its digests and - unless ``trust_model`` - the file loads without unpickling
+        (reads JSON and weights only; nothing of the model is built)."""
+        model = resolve_model_path(path)
+        verify_shipped(model)
+        if trust_model:
+            return
+        try:
+            from .policy import algo_class, load_sidecar
+            from .safe_load import check_safe
+            check_safe(algo_class(algo), model, load_sidecar(model))
+        except ModuleNotFoundError as exc:
+            if exc.name and exc.name.split(".")[0] in {"torch", "stable_baselines3"}:
+                return   # the missing optional dependency is reported, in one line, by the loader
+            raise
+    return check
 
 
 def model_fingerprint(path: str) -> str:
@@ -50,7 +66,7 @@ def model_fingerprint(path: str) -> str:
 
 
 def _loader(algo: str):
-    def load(env: Any, path: str) -> Any:
+    def load(env: Any, path: str, trust_model: bool = False) -> Any:
         """Load ``path`` for ``env``; a missing optional dependency is a one-line ValueError."""
         try:
             from .policy import load_sb3_policy   # torch and stable-baselines3 only now
@@ -60,11 +76,11 @@ def _loader(algo: str):
                                  "install it with: pip install 'wt-inspect[rl]'") from None
             raise ValueError(f"controller '{algo}:{path}' needs agents.policy.load_sb3_policy, which cannot "
                              f"be imported: {exc}") from None
-        return load_sb3_policy(algo, resolve_model_path(path), env)
+        return load_sb3_policy(algo, resolve_model_path(path), env, trust_model=trust_model)
     return load
 
 
 ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)", display_name="PPO",
-                  takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)
+                  takes_argument=True, check=_check("ppo"), fingerprint=model_fingerprint, trust_option=True)
 sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip or sac:NAME)", display_name="SAC",
-                  takes_argument=True, check=check_model_file, fingerprint=model_fingerprint)
+                  takes_argument=True, check=_check("sac"), fingerprint=model_fingerprint, trust_option=True)

@@ -29,6 +29,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--recipe", default=None,
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
     p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
+    p.add_argument("--trust-model", action="store_true",
+                   help="WARNING: with --resume, also load a checkpoint that needs unpickling (an old "
+                        ".vecnormalize.pkl, a zip with entries that cannot be rebuilt) - this runs code from the "
+                        "file; only for files you made yourself or fully trust")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--seeds", default=None, help="train one run per seed (comma-separated) into OUT/seed_<s>/; "
                    "finished seeds are skipped, unfinished ones resume from their latest checkpoint")
@@ -60,7 +64,8 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
                         resume=args.resume, seed=args.seed, max_minutes=args.max_minutes,
-                        progress_bar=not args.no_progress, verbose=args.verbose, backend=args.backend)
+                        progress_bar=not args.no_progress, verbose=args.verbose, backend=args.backend,
+                        trust_model=args.trust_model)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

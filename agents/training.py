@@ -2,7 +2,7 @@
 
 A run writes into its output directory::
 
-    model.zip / model.json / model.vecnormalize.pkl   final agent (+ sidecar, + resume statistics)
+    model.zip / model.json / model.vecnormalize.json  final agent (+ sidecar, + resume statistics)
     best_model.*                                      agent with the best periodic evaluation
     checkpoints/ckpt_<env steps>.*                    resumable checkpoints
     evaluations.json                                  periodic evaluations (shared metrics)
@@ -43,6 +43,7 @@ from wt_inspect_env.validation import check_choice
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
 from .recipe import Recipe, default_recipe_path, load_recipe
+from .safe_load import LEGACY_VECNORM_SUFFIX, load_sb3_model, load_vecnormalize, sb3_algo_kwargs, sb3_policy_kwargs
 from .wrappers import AgentSpec, EpisodeVariants, InspectionAgentEnv, ShapingConfig
 
 TASK_ENV_IDS: dict[str, str] = {task: env_id for env_id, task in wt_inspect_env.ENV_IDS.items()}
@@ -309,22 +310,11 @@ def _read_json_list(path: Path) -> list:
 
 
 def _algo_kwargs(recipe: Recipe) -> dict[str, Any]:
-    from stable_baselines3.common.utils import LinearSchedule
-    kw = dict(recipe.algo_kwargs)
-    final = kw.pop("learning_rate_final", None)
-    if final is not None:
-        lr0 = float(kw.get("learning_rate", 3e-4))
-        kw["learning_rate"] = LinearSchedule(lr0, float(final), 1.0)
-    return kw
+    return sb3_algo_kwargs(recipe.algo_kwargs)
 
 
 def _policy_kwargs(recipe: Recipe) -> dict[str, Any]:
-    import torch.nn as nn
-    kw = dict(recipe.policy_kwargs)
-    act = kw.get("activation_fn")
-    if act is not None:
-        kw["activation_fn"] = {"tanh": nn.Tanh, "relu": nn.ReLU, "elu": nn.ELU, "leaky_relu": nn.LeakyReLU}[act]
-    return kw
+    return sb3_policy_kwargs(recipe.policy_kwargs)
 
 
 def _positive_int(name: str, value: Any) -> int:
@@ -336,14 +326,16 @@ def _positive_int(name: str, value: Any) -> int:
 def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
           recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
           max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
-          backend: str = "vector") -> dict[str, Any]:
+          backend: str = "vector", trust_model: bool = False) -> dict[str, Any]:
     """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
 
     ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
     :class:`Recipe`, or None for ``agents/recipes/<algo>_surface.json`` (or, when resuming, the
     checkpoint's recipe). ``resume``: a checkpoint/model ``.zip`` saved by a run (its sidecar and
     VecNormalize statistics are read from beside it). ``max_minutes``: stop early (and save) once
-    this much wall time has passed in this call.
+    this much wall time has passed in this call. ``trust_model``: resume from a checkpoint even if
+    loading it runs code from it (a zip that needs unpickling, or an old ``.vecnormalize.pkl``);
+    without it such a checkpoint is a ValueError before anything is written.
     """
     check_choice("algorithm", algo, ALGOS)
     check_choice("task", task, TASKS)
@@ -356,15 +348,23 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
     ckpt_doc = None
     if resume is not None:
-        zip_path, _, pkl_path = sidecar_paths(resume)
+        zip_path, _, norm_path = sidecar_paths(resume)
         if not zip_path.is_file():
             raise ValueError(f"resume checkpoint {str(zip_path)!r} not found")
         ckpt_doc = load_sidecar(zip_path)
         if ckpt_doc.get("algo") != algo:
             raise ValueError(f"resume checkpoint {str(zip_path)!r} was trained with {ckpt_doc.get('algo')!r}, "
                              f"not {algo!r}")
-        if not pkl_path.is_file() and ckpt_doc.get("obs_normalization") is not None:
-            raise ValueError(f"resume needs the normalisation statistics {str(pkl_path)!r}")
+        legacy = Path(str(zip_path.with_suffix("")) + LEGACY_VECNORM_SUFFIX)
+        if not norm_path.is_file() and legacy.is_file() and not trust_model:
+            raise ValueError(f"resume: the normalisation statistics {str(legacy)!r} are a pickle (loading runs code "
+                             f"from it); pass --trust-model to load it once (the run then saves "
+                             f"{norm_path.name!r}) only if you trust the file")
+        if not norm_path.is_file() and not legacy.is_file() and ckpt_doc.get("obs_normalization") is not None:
+            raise ValueError(f"resume needs the normalisation statistics {str(norm_path)!r}")
+        if not trust_model:   # refuse an unsafe checkpoint before anything is written
+            from .safe_load import check_safe
+            check_safe(algo_class(algo), zip_path, ckpt_doc)
     if isinstance(recipe, Recipe):
         rec = recipe
     elif recipe is not None:
@@ -394,7 +394,10 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     gamma = float(rec.algo_kwargs.get("gamma", 0.99))
     vecnorm = None
     if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
-        vecnorm = VecNormalize.load(str(sidecar_paths(resume)[2]), venv)
+        vecnorm = load_vecnormalize(sidecar_paths(resume)[2], venv)
+        venv = vecnorm
+    elif ckpt_doc is not None and trust_model and legacy.is_file():
+        vecnorm = VecNormalize.load(str(legacy), venv)   # the user trusts this pickle (checked above)
         vecnorm.training = True
         venv = vecnorm
     elif use_norm:
@@ -404,7 +407,8 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         venv = vecnorm
     tb = str(out / "tb")
     if ckpt_doc is not None:
-        model = cls.load(str(sidecar_paths(resume)[0]), env=venv, device="cpu", tensorboard_log=tb)
+        model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
+                               device="cpu", tensorboard_log=tb)
         env_steps0 = int(ckpt_doc.get("training", {}).get("env_steps", 0))
         wall0 = float(ckpt_doc.get("training", {}).get("wall_time_s", 0.0))
     else:

@@ -148,7 +148,7 @@ def _seeds(values: Iterable[Any]) -> list[int]:
 
 def plan_sweep(scenario: str, controllers: Sequence[str], winds: Sequence[float], seeds: Sequence[int], *,
                sweep: SweepSpec, max_time: float | None, record_every: int,
-               custom: Iterable[str] = ()) -> list[RunSpec]:
+               custom: Iterable[str] = (), trust_model: bool = False) -> list[RunSpec]:
     """The run specs of a sweep in table order (wind, controller, seed); all validation here."""
     custom = set(custom)
     specs = []
@@ -156,7 +156,8 @@ def plan_sweep(scenario: str, controllers: Sequence[str], winds: Sequence[float]
         opts = sweep.options(wind)
         for c in controllers:
             for s in seeds:
-                specs.append(make_spec(scenario, c, wind, s, opts, max_time, record_every, custom=c in custom))
+                specs.append(make_spec(scenario, c, wind, s, opts, max_time, record_every, custom=c in custom,
+                                       trust_model=trust_model))
     return specs
 
 
@@ -168,7 +169,8 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
                    drone: str | None = None, env_overrides: Mapping[str, Any] | None = None,
                    record_every: int = 1, figures: bool = True, progress: bool = True, rerun: bool = False,
                    command: str | None = None,
-                   on_result: Callable[[RunResult], None] | None = None) -> Evaluation:
+                   on_result: Callable[[RunResult], None] | None = None,
+                   trust_model: bool = False) -> Evaluation:
     """Run a sweep (controllers x winds x seeds) on ``backend`` and write the results to ``out``.
 
     ``controllers``: registered names / ``ppo:PATH`` strings, or a mapping ``label -> name, policy
@@ -177,7 +179,9 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     to the scenario's. Finished runs in ``out/runs`` are reused unless ``rerun``. Raises
     ``ValueError`` for bad arguments (naming them) and :class:`OutputDirError` if ``out`` cannot be
     written - both before any run starts. ``KeyboardInterrupt`` writes the results of the finished
-    runs (marked incomplete) and propagates.
+    runs (marked incomplete) and propagates. ``trust_model``: load ``ppo:``/``sac:`` model files
+    even if that runs code from them (the CLI's ``--trust-model``; without it such a file is
+    refused before any run starts).
     """
     t0 = time.perf_counter()
     sc = get_scenario(scenario)
@@ -207,7 +211,7 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     sweep = SweepSpec(scenario, wind_type, dict(wind_options or {}), dict(turbine or {}), drone,
                       dict(env_overrides or {}))
     specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
-                       record_every=record_every, custom=factories)
+                       record_every=record_every, custom=factories, trust_model=trust_model)
     out_dir = prepare_out_dir(out)
     _remove_stale_temporaries(out_dir / "runs")
 

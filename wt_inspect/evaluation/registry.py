@@ -98,14 +98,20 @@ def split_name(name: str) -> tuple[str, str | None]:
     return key, (arg if sep else None)
 
 
-def check_controller(name: str) -> None:
+def _trust(entry: PolicyEntry, trust_model: bool) -> dict[str, bool]:
+    """The ``trust_model`` keyword for an entry that takes it (see PolicyEntry.trust_option)."""
+    return {"trust_model": bool(trust_model)} if entry.trust_option else {}
+
+
+def check_controller(name: str, *, trust_model: bool = False) -> None:
     """ValueError listing the valid names unless ``name`` resolves (cheap: nothing is built;
-    an entry's own ``check`` validates its argument, e.g. that a model file exists)."""
+    an entry's own ``check`` validates its argument, e.g. that a model file exists and loads
+    without running code from it unless ``trust_model``)."""
     key, arg = split_name(name)
     entry = _load(key)
     if arg is not None and entry.check is not None:
         try:
-            entry.check(arg)
+            entry.check(arg, **_trust(entry, trust_model))
         except ValueError as exc:
             raise ValueError(f"controller {name!r}: {exc}") from None
 
@@ -121,14 +127,16 @@ def fingerprint(name: str) -> str:
     return f"{key}:{entry.fingerprint(arg)}" if entry.fingerprint is not None else f"{key}:{arg}"
 
 
-def resolve(name: str) -> PolicyFactory:
-    """The factory ``env -> policy`` of a controller name (see the module docstring)."""
-    check_controller(name)
+def resolve(name: str, *, trust_model: bool = False) -> PolicyFactory:
+    """The factory ``env -> policy`` of a controller name (see the module docstring);
+    ``trust_model``: the user's explicit consent to run code from a model file that needs it."""
+    check_controller(name, trust_model=trust_model)
     key, arg = split_name(name)
     entry = _load(key)
     if arg is None:
         return entry.factory
-    return lambda env: entry.factory(env, arg)
+    trust = _trust(entry, trust_model)
+    return lambda env: entry.factory(env, arg, **trust)
 
 
 def display_name(name: str) -> str:

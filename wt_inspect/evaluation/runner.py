@@ -127,6 +127,7 @@ class RunSpec:
     max_time: float | None = None
     record_every: int = 1
     controller_id: str = ""       # registry.fingerprint(controller); filled by make_spec
+    trust_model: bool = False     # --trust-model: the user lets a model file run code (not in the key)
 
     @property
     def key(self) -> str:
@@ -146,7 +147,8 @@ class RunSpec:
 
 
 def make_spec(scenario: str, controller: str, wind: float, seed: int, env_options: Mapping[str, Any],
-              max_time: float | None = None, record_every: int = 1, *, custom: bool = False) -> RunSpec:
+              max_time: float | None = None, record_every: int = 1, *, custom: bool = False,
+              trust_model: bool = False) -> RunSpec:
     """A validated :class:`RunSpec` (controller name checked, model file fingerprinted).
     ``custom``: ``controller`` is only a label for a policy supplied by the caller (resuming then
     trusts the label: give a changed policy a new label, or rerun)."""
@@ -155,7 +157,7 @@ def make_spec(scenario: str, controller: str, wind: float, seed: int, env_option
             raise ValueError(f"a custom policy needs a non-empty label, got {controller!r}")
         controller_id = f"custom:{controller}"
     else:
-        registry.check_controller(controller)
+        registry.check_controller(controller, trust_model=trust_model)
         controller_id = registry.fingerprint(controller)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
@@ -166,7 +168,8 @@ def make_spec(scenario: str, controller: str, wind: float, seed: int, env_option
         raise ValueError(f"record_every must be a positive integer, got {record_every!r}")
     env_options = json.loads(json.dumps(env_options))   # plain JSON data, stable for hashing
     return RunSpec(scenario, controller, float(wind), int(seed), env_options,
-                   None if max_time is None else float(max_time), int(record_every), controller_id)
+                   None if max_time is None else float(max_time), int(record_every), controller_id,
+                   bool(trust_model) and not custom)
 
 
 @dataclass
@@ -380,7 +383,7 @@ def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
     env = make_env(spec.env_options)
     try:
         if policy is None:
-            policy = registry.resolve(spec.controller)(env.unwrapped)
+            policy = registry.resolve(spec.controller, trust_model=spec.trust_model)(env.unwrapped)
         elif not callable(getattr(policy, "act", None)) and callable(policy):
             policy = policy(env.unwrapped)
         return fly(env, policy, spec, record=record, progress=progress)
