@@ -11,7 +11,10 @@ subcommand runs, so ``wt-inspect plan`` never pays for importing torch.
 from __future__ import annotations
 
 import importlib
+import importlib.metadata
 import sys
+
+DIST_NAME = "wt-inspect"   # the distribution (pyproject ``[project] name``) whose version --version prints
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
@@ -30,8 +33,17 @@ BENCHES: dict[str, tuple[str, str]] = {
 }
 
 
+def version() -> str:
+    """The installed distribution's version: read from the package metadata, so ``pyproject.toml``
+    stays the one place the version is written (no ``__version__`` to keep in step)."""
+    try:
+        return importlib.metadata.version(DIST_NAME)
+    except importlib.metadata.PackageNotFoundError:   # run from a checkout that was never installed
+        return "unknown (not installed: pip install -e .)"
+
+
 def _usage() -> str:
-    lines = ["usage: wt-inspect <command> [options]", "", "commands:"]
+    lines = ["usage: wt-inspect [--version] <command> [options]", "", "commands:"]
     lines += [f"  {name:<10} {help_}" for name, (_, help_) in COMMANDS.items()]
     lines += ["  bench      benchmarks: " + ", ".join(BENCHES)]
     lines += ["", "Run 'wt-inspect <command> --help' for the options of one command."]
@@ -57,6 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     if not argv or argv[0] in {"-h", "--help"}:
         print(_usage())
         return 0 if argv else 2
+    if argv[0] in {"-V", "--version"}:
+        print(f"wt-inspect {version()}")
+        return 0
     cmd, rest = argv[0], argv[1:]
     if cmd == "bench":
         if not rest or rest[0] not in BENCHES:

@@ -16,7 +16,7 @@ Command line: ``wt-inspect evaluate`` (:mod:`.cli`). Layout of the output direct
 
     out/results.csv          one row per run (see report.CSV_COLUMNS)
     out/results.md           the paper's table layout beside the paper's numbers, all runs, setup
-    out/*.png                figures (see figures)
+    out/*.png                figures (see figures; .pdf / .svg with figure_format)
     out/runs/*.npz           one file per run: trajectory and per-step metrics (see runner)
 
 Resume: a run's file is written atomically when it finishes and named by a hash of everything
@@ -37,6 +37,8 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
+
+from wt_inspect_env.figure_io import check_figure_format
 
 from . import registry
 from .backends import BACKENDS, check_jobs, run_specs
@@ -167,8 +169,8 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
                    address: str | None = None, max_time: float | None = None, wind_type: str = "gust",
                    wind_options: Mapping[str, Any] | None = None, turbine: Mapping[str, Any] | None = None,
                    drone: str | None = None, env_overrides: Mapping[str, Any] | None = None,
-                   record_every: int = 1, figures: bool = True, progress: bool = True, rerun: bool = False,
-                   command: str | None = None,
+                   record_every: int = 1, figures: bool = True, figure_format: str = "png",
+                   progress: bool = True, rerun: bool = False, command: str | None = None,
                    on_result: Callable[[RunResult], None] | None = None,
                    trust_model: bool = False) -> Evaluation:
     """Run a sweep (controllers x winds x seeds) on ``backend`` and write the results to ``out``.
@@ -178,13 +180,14 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     factory must be picklable; an object is used as is only with ``jobs=1``). ``winds`` defaults
     to the scenario's. Finished runs in ``out/runs`` are reused unless ``rerun``. Raises
     ``ValueError`` for bad arguments (naming them) and :class:`OutputDirError` if ``out`` cannot be
-    written - both before any run starts. ``KeyboardInterrupt`` writes the results of the finished
-    runs (marked incomplete) and propagates. ``trust_model``: load ``ppo:``/``sac:`` model files
+    written - both before any run starts. ``figure_format``: png, pdf or svg.
+    ``KeyboardInterrupt`` writes the results of the finished runs (marked incomplete) and propagates. ``trust_model``: load ``ppo:``/``sac:`` model files
     even if that runs code from them (the CLI's ``--trust-model``; without it such a file is
     refused before any run starts).
     """
     t0 = time.perf_counter()
     sc = get_scenario(scenario)
+    check_figure_format(figure_format)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
     jobs = check_jobs(jobs)
@@ -272,7 +275,8 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
     if figures:
         from .figures import make_figures   # matplotlib only when drawing
-        files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario)
+        files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario,
+                                        figure_format)
     ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
     files["md"] = write_markdown(results, ctx, out_dir / "results.md")
     return Evaluation(out=out_dir, results=results, n_ran=ctx.n_ran, n_resumed=n_resumed,

@@ -1,4 +1,5 @@
-"""Figures of an evaluation (matplotlib, Agg backend; written atomically as PNG).
+"""Figures of an evaluation (matplotlib, Agg backend; written atomically as PNG, or PDF / SVG with
+``figure_format``: the names below then end in ``.pdf`` / ``.svg``).
 
 Per wind speed, from the first seed of every controller (the paper shows its 4 m/s runs):
 
@@ -23,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from wt_inspect_env.atomic_io import atomic_path  # noqa: E402
+from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, check_figure_format, save_figure  # noqa: E402
 
 from .registry import display_name  # noqa: E402
 from .report import order_controllers  # noqa: E402
@@ -44,10 +45,11 @@ def _thin(n: int) -> np.ndarray:
 
 
 def _save(fig: plt.Figure, path: Path) -> Path:
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    """Write ``fig`` to ``path`` (its suffix is the format) and free it."""
+    try:
+        return save_figure(fig, path, path.suffix.lstrip("."), bbox_inches="tight")
+    finally:
+        plt.close(fig)
 
 
 def _equal_axes(ax, pts: np.ndarray) -> None:
@@ -231,8 +233,11 @@ def coverage_map(runs: Sequence[RunResult], path: Path, title: str) -> Path:
     return _save(fig, path)
 
 
-def make_figures(results: Sequence[RunResult], out_dir: str | Path, scenario: str) -> list[Path]:
-    """All figures for ``results`` (runs must carry their arrays); returns the written paths."""
+def make_figures(results: Sequence[RunResult], out_dir: str | Path, scenario: str,
+                 figure_format: str = DEFAULT_FIGURE_FORMAT) -> list[Path]:
+    """All figures for ``results`` (runs must carry their arrays) in ``figure_format`` (png, pdf,
+    svg); returns the written paths."""
+    ext = "." + check_figure_format(figure_format)
     out = Path(out_dir)
     written: list[Path] = []
     winds = sorted({r.spec.wind for r in results})
@@ -247,8 +252,8 @@ def make_figures(results: Sequence[RunResult], out_dir: str | Path, scenario: st
             continue
         tag = f"w{wind:g}"
         ttl = f"{scenario}, mean wind {wind:g} m/s (seed {runs[0].spec.seed})"
-        written += [trajectories(runs, out / f"trajectories_{tag}.png", f"Trajectories: {ttl}"),
-                    distance(runs, out / f"distance_{tag}.png", f"Distance to the surface: {ttl}"),
-                    centering(runs, out / f"centering_{tag}.png", f"Centering: {ttl}"),
-                    coverage_map(runs, out / f"coverage_{tag}.png", f"Coverage map: {ttl}")]
+        written += [trajectories(runs, out / f"trajectories_{tag}{ext}", f"Trajectories: {ttl}"),
+                    distance(runs, out / f"distance_{tag}{ext}", f"Distance to the surface: {ttl}"),
+                    centering(runs, out / f"centering_{tag}{ext}", f"Centering: {ttl}"),
+                    coverage_map(runs, out / f"coverage_{tag}{ext}", f"Coverage map: {ttl}")]
     return written

@@ -3,7 +3,7 @@
 Writes ``DIR/turbine.stl`` (blades, hub and tower as planned: phase-1 rotor position),
 ``DIR/path.csv`` (``x,y,z,nx,ny,nz,surface,phase,s``: inspection point, outward normal, surface id
 or -1 on transitions, phase 1 or 2, arc length of the inspection point) and ``DIR/plan.png``
-(3-D view per phase), each atomically, and prints a summary (``--json``: one JSON object).
+(3-D view per phase; ``--figure-format pdf|svg`` for a vector figure instead), each atomically, and prints a summary (``--json``: one JSON object).
 """
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection
 from ..planner.config import STANDOFF_MODES
 from ..turbine import TurbineSpec, build_turbine
@@ -36,6 +37,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     ap.add_argument("--no-plot", action="store_true", help="skip plan.png (rendering takes ~2 s)")
+    ap.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
+                    help=f"format of the plan figure (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
     t = ap.add_argument_group("turbine (defaults: the paper's Vestas V100)")
     t.add_argument("--tower-height", type=float, metavar="M", help=f"hub height [m] ({d.tower_height:g})")
     t.add_argument("--blade-length", type=float, metavar="M", help=f"[m] ({d.blade_length:g})")
@@ -87,7 +90,7 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
              "path": str(plan.to_csv(out / "path.csv"))}
     if not args.no_plot:
         from ..planner.plot import save_plan_figure   # matplotlib only when drawing
-        files["figure"] = str(save_plan_figure(plan, out / "plan.png"))
+        files["figure"] = str(save_plan_figure(plan, out / "plan.png", args.figure_format))
     summary = plan.summary()
     summary["min_clearance_m"] = round(plan.min_clearance(), 4)
     summary["build_time_s"] = round(t_build, 6)
