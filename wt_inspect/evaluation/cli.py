@@ -99,6 +99,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     o.add_argument("--no-progress", action="store_true", default=None, help="no progress bars")
     o.add_argument("--rerun", action="store_true", default=None,
                    help="ignore finished runs in DIR/runs and run everything again")
+    ap.add_argument("--trust-model", action="store_true", default=None,
+                    help="load ppo:/sac: model files even if that runs code stored in them (refused otherwise); "
+                         "only for files you made yourself or fully trust")
     return ap
 
 
@@ -114,7 +117,8 @@ def _flags(args: argparse.Namespace) -> dict[str, Any]:
             "max_time": args.max_time, "wind_type": args.wind_type, "wind_options": args.wind_options,
             "turbine": args.turbine, "drone": args.drone, "env": args.env, "record_every": args.record_every,
             "figures": False if args.no_figures else None, "figure_format": args.figure_format,
-            "progress": False if args.no_progress else None, "rerun": True if args.rerun else None}
+            "progress": False if args.no_progress else None, "rerun": True if args.rerun else None,
+            "trust_model": True if args.trust_model else None}
 
 
 def resolve(args: argparse.Namespace) -> EvaluateConfig:

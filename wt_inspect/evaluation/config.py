@@ -34,7 +34,7 @@ KINDS: dict[str, str] = {
     "scenario": "str", "controllers": "str_list", "winds": "number_list", "seeds": "int_list", "out": "str",
     "backend": "str", "address": "str", "jobs": "int", "max_time": "number", "wind_type": "str",
     "wind_options": "table", "turbine": "table", "drone": "str", "env": "table", "record_every": "int",
-    "figures": "bool", "figure_format": "str", "progress": "bool", "rerun": "bool",
+    "figures": "bool", "figure_format": "str", "progress": "bool", "rerun": "bool", "trust_model": "bool",
 }
 _KIND_TEXT = {"str": "a string", "str_list": "an array of strings", "number_list": "an array of numbers",
               "int_list": "an array of integers", "int": "an integer", "number": "a number",
@@ -65,6 +65,7 @@ class EvaluateConfig:
     figure_format: str = DEFAULT_FIGURE_FORMAT
     progress: bool = True
     rerun: bool = False
+    trust_model: bool = False
 
     def merged(self, overrides: Mapping[str, Any]) -> "EvaluateConfig":
         """This config with ``overrides`` (already-typed values, e.g. the flags given on the
@@ -83,7 +84,7 @@ class EvaluateConfig:
                 "max_time": self.max_time, "wind_type": self.wind_type, "wind_options": dict(self.wind_options),
                 "turbine": dict(self.turbine), "drone": self.drone, "env_overrides": dict(self.env),
                 "record_every": self.record_every, "figures": self.figures, "figure_format": self.figure_format,
-                "progress": self.progress, "rerun": self.rerun}
+                "progress": self.progress, "rerun": self.rerun, "trust_model": self.trust_model}
 
     def command(self, prog: str = "wt-inspect evaluate") -> str:
         """The equivalent command line with flags only (every option that differs from the
