@@ -29,13 +29,12 @@ import hashlib
 import os
 import shutil
 import subprocess
-import tempfile
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from .codegen import default_cache_dir
+from .codegen import CompileError, LibraryCache
 
 HPIPM_MODES = {"speed_abs": 0, "speed": 1, "balance": 2, "robust": 3}
 
@@ -368,9 +367,11 @@ def _casadi_lib_dir() -> Path:
     return Path(ca.__file__).parent
 
 
-def shim_library(cache_dir: str | os.PathLike | None = None) -> Path:
-    """The compiled shim (built once per compiler and casadi version, then cached); RuntimeError
-    naming the cause when it cannot be built (no compiler, no libhpipm)."""
+def load_shim(cache_dir: str | os.PathLike | None = None) -> tuple[ctypes.CDLL, Path]:
+    """The compiled shim, loaded (built once per compiler and casadi version, then cached in the
+    guarded library cache of :mod:`controllers.codegen`: digest-checked, rebuilt if corrupt);
+    RuntimeError naming the cause when it cannot be built (no compiler, no libhpipm), CacheDirError
+    (a ValueError) when the cache directory cannot be trusted."""
     libdir = _casadi_lib_dir()
     if not (libdir / "libhpipm.so").exists():
         raise RuntimeError(f"no libhpipm.so in the casadi package ({libdir})")
@@ -378,22 +379,26 @@ def shim_library(cache_dir: str | os.PathLike | None = None) -> Path:
     if exe is None:
         raise RuntimeError("no C compiler (gcc or $CC) to build the HPIPM shim")
     key = hashlib.sha256("\n".join([_SHIM, exe, ca.__version__, str(libdir)]).encode()).hexdigest()[:20]
-    directory = Path(cache_dir).expanduser() if cache_dir is not None else default_cache_dir()
-    directory.mkdir(parents=True, exist_ok=True)
-    lib = directory / f"vt_hpipm_{key}.so"
-    if lib.exists():
-        return lib
-    with tempfile.TemporaryDirectory(dir=directory) as tmp:
-        src = Path(tmp) / "vt_hpipm.c"
+    name = f"vt_hpipm_{key}.so"
+
+    def build(tmp: Path) -> Path:
+        src = tmp / "vt_hpipm.c"
         src.write_text(_SHIM)
-        out = Path(tmp) / lib.name
+        out = tmp / name
         cmd = [exe, "-O2", "-shared", "-fPIC", str(src), "-o", str(out), f"-L{libdir}",
                f"-Wl,-rpath,{libdir}", "-lhpipm", "-lblasfeo", "-lm"]
         proc = subprocess.run(cmd, capture_output=True, text=True)
         if proc.returncode != 0:
-            raise RuntimeError(f"building the HPIPM shim failed: {proc.stderr.strip()[:300]}")
-        os.replace(out, lib)
-    return lib
+            raise CompileError(f"building the HPIPM shim failed: {proc.stderr.strip()[:300]}")
+        return out
+
+    lib, path, _ = LibraryCache.open(cache_dir).load(name, build, lambda p: ctypes.CDLL(str(p)))
+    return lib, path
+
+
+def shim_library(cache_dir: str | os.PathLike | None = None) -> Path:
+    """Path of the compiled (digest-checked, loadable) shim; see :func:`load_shim`."""
+    return load_shim(cache_dir)[1]
 
 
 class HpipmQP:
@@ -424,7 +429,10 @@ class HpipmQP:
     @classmethod
     def _load_lib(cls, cache_dir) -> ctypes.CDLL:
         if cls._lib is None:
-            lib = ctypes.CDLL(str(shim_library(cache_dir)))
+            try:
+                lib, _ = load_shim(cache_dir)
+            except OSError as exc:   # a freshly built shim that does not load
+                raise RuntimeError(f"the HPIPM shim does not load: {exc}") from None
             vp, ip, dp = ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p
             lib.vtqp_create.restype = vp
             lib.vtqp_create.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ip,
