@@ -20,6 +20,7 @@ non-finite state (then ``info["termination"]`` says which). ``truncated``: the m
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Any
 
 import gymnasium as gym
@@ -30,12 +31,15 @@ from .camera import GimbalCamera
 from .coverage import CoverageTracker, PyBulletOccluder, TriangleVisibility
 from .dynamics import yaw_to_quat
 from .env_config import EnvConfig
+from .randomization import RandomizationDraw, noisy_state
+from .randomization import draw as draw_randomization
 from .metrics import MetricAccumulator, MetricsConfig
 from .mission import Mission, build_mission
 from .reference import InspectionReference, ReferenceConfig, ReferenceSample
 from .sim import RAY_MASK_WITHOUT_DRONE, QuadrotorSim, SimConfig
 from .spaces import OBS_SHAPES, ActionScaling
 from .step_terms import observations, reward_terms
+from .texture import SpanTexture
 from .validation import check_array
 from .wind import make_wind
 
@@ -50,11 +54,24 @@ def _display_available() -> bool:
     return not sys.platform.startswith("linux") or bool(os.environ.get("DISPLAY"))
 
 
-def observation_space() -> spaces.Dict:
-    """The Dict observation space of one drone (see :mod:`~wt_inspect_env.spaces`)."""
+# Image entries each observation mode adds to the state Dict.
+IMAGE_KEYS = {"state": (), "rgb": ("rgb",), "depth": ("depth",), "rgbd": ("rgb", "depth")}
+
+
+def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84, 84),
+                      depth_far: float = 50.0) -> spaces.Dict:
+    """The Dict observation space of one drone (see :mod:`~wt_inspect_env.spaces`); the image
+    modes add ``rgb`` (uint8 (h, w, 3), the layout stable-baselines3's CNN policies expect) and/or
+    ``depth`` (float32 (h, w, 1) [m]) to the state entries, which every policy still reads."""
     bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
               "progress": (0.0, 1.0)}
-    return spaces.Dict({k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()})
+    entries = {k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()}
+    w, h = resolution
+    if "rgb" in IMAGE_KEYS[obs_mode]:
+        entries["rgb"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)
+    if "depth" in IMAGE_KEYS[obs_mode]:
+        entries["depth"] = spaces.Box(0.0, float(depth_far), shape=(h, w, 1), dtype=np.float32)
+    return spaces.Dict(entries)
 
 
 def start_state(ideal_position: np.ndarray, point: np.ndarray, start_offset: Any, start_noise: float,
@@ -98,7 +115,9 @@ class WindTurbineInspectionEnv(gym.Env):
         self.mission: Mission = build_mission(cfg)
         self.wind = make_wind(cfg.wind)
         self.sim = QuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz),
-                                wind=self.wind, obstacles=self.mission.turbines[0].mesh)
+                                wind=self.wind, obstacles=self.mission.turbines[0].mesh,
+                                obstacle_texture=SpanTexture.for_meshes(
+                                    self.mission.turbines[0].rotor_center, [t.mesh for t in self.mission.turbines]))
         if render_mode == "human":
             self.sim.enable_gui()  # pragma: no cover - needs a display
         self.camera = GimbalCamera(cfg.camera)
@@ -120,8 +139,12 @@ class WindTurbineInspectionEnv(gym.Env):
         self._vol_lo, self._vol_hi = lo, hi
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        self.observation_space = observation_space()
+        self.observation_space = observation_space(cfg.obs_mode, cfg.camera_resolution, cfg.depth_far)
         self._hover = self.scaling.hover_action()
+        self.episode_config = cfg
+        self.randomization: RandomizationDraw | None = None
+        self._noise_rng: np.random.Generator | None = None
+        self._commands: deque = deque()
         self._sample: ReferenceSample | None = None
         self._steps = 0
         self._phase_index = 0
@@ -131,19 +154,32 @@ class WindTurbineInspectionEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        # Options first, so bad ones are refused before anything changes; they hold for this
+        # episode only (the next reset without them is the constructor's configuration again).
+        ep = self.config.for_episode(options)
+        wind = make_wind(ep.wind) if options and "wind" in options else self.wind
+        self.episode_config = ep
         if seed is None and not self._seeded:
             seed = self.config.seed
         self._seeded = True
         super().reset(seed=seed)
-        if options:
-            raise ValueError(f"reset options are not supported, got {options!r}")
-        self.wind.reset(int(self.np_random.integers(2**63 - 1)))
+        self.sim.wind = wind
+        wind.reset(int(self.np_random.integers(2**63 - 1)))
         self._set_phase(0)
-        frac = (float(self.np_random.uniform(0.0, self.config.start_progress))
-                if self.config.start_progress > 0 else 0.0)
+        frac = float(self.np_random.uniform(0.0, ep.start_progress)) if ep.start_progress > 0 else 0.0
         self._sample = self.reference.reset(frac)
-        state = start_state(self._sample.ideal_position, self._sample.point, self.config.start_offset,
-                            self.config.start_noise, self.np_random)
+        state = start_state(self._sample.ideal_position, self._sample.point, ep.start_offset,
+                            ep.start_noise, self.np_random)
+        # Drawn after the start (so without randomisation the seeded stream is today's).
+        self.randomization = (None if ep.randomization is None
+                              else draw_randomization(ep.randomization, self.params, self.np_random))
+        r = self.randomization
+        if r is not None:
+            self.sim.set_plant(r.plant, r.thrust_scale)
+            self._noise_rng = np.random.default_rng(r.noise_seed)
+            self._commands = deque([self.scaling.to_command(self._hover)] * r.latency_steps)
+        elif self.sim.plant is not self.params:
+            self.sim.set_plant()
         self.sim.reset(state)
         self.coverage.reset()
         self.metrics.reset()
@@ -160,6 +196,9 @@ class WindTurbineInspectionEnv(gym.Env):
             raise RuntimeError("call reset() before step()")
         a = check_array("action", action, (4,))
         command = self.scaling.to_command(a)
+        if self.randomization is not None and self.randomization.latency_steps:
+            self._commands.append(command)      # command latency: the one from latency_steps ago
+            command = self._commands.popleft()
         self.sim.step(command)
         self._steps += 1
         state = self.sim.state
@@ -208,7 +247,27 @@ class WindTurbineInspectionEnv(gym.Env):
         obs = observations(self.sim.state[None], self.sim.body_rates[None], s.point[None], s.normal[None],
                            s.velocity[None], np.array([self.coverage.coverage]), np.array([s.progress]),
                            safe=np.array([safe]))
-        return {k: v[0] for k, v in obs.items()}
+        out = {k: v[0] for k, v in obs.items()}
+        r = self.randomization
+        if r is not None and r.has_noise and not safe:
+            noisy_state(out, r, self._noise_rng)
+        if self.config.obs_mode != "state":
+            out.update(self._camera_images())
+        return out
+
+    def _camera_images(self) -> dict[str, np.ndarray]:
+        """The gimbal camera's images for the image observation modes (see :mod:`.render`)."""
+        from .render import camera_images
+        cfg = self.config
+        rgb, depth = camera_images(self.sim.client, self.camera, self.sim.state, cfg.camera_resolution,
+                                   far=cfg.depth_far, rgb="rgb" in IMAGE_KEYS[cfg.obs_mode],
+                                   depth="depth" in IMAGE_KEYS[cfg.obs_mode])
+        out = {}
+        if rgb is not None:
+            out["rgb"] = rgb
+        if depth is not None:
+            out["depth"] = depth[:, :, None]
+        return out
 
     def _reward(self, action: np.ndarray, state: np.ndarray, n_new: int, crashed: bool
                 ) -> tuple[float, dict[str, float]]:
@@ -238,6 +297,7 @@ class WindTurbineInspectionEnv(gym.Env):
             "waiting_for_phase_change": s.waiting_for_phase_change,
             "ideal_position": s.ideal_position.copy(),
             "wind": self.sim.wind_velocity.copy(),
+            **({} if self.randomization is None else {"randomization": self.randomization.to_info()}),
         }
 
     # ------------------------------------------------------------------ internals

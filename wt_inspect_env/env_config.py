@@ -13,12 +13,21 @@ from typing import Any, Mapping
 
 from .camera import CameraConfig
 from .quadrotor import QuadrotorParams, get_preset
+from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
 from .turbine import TurbineSpec
 from .validation import (check_array, check_choice, check_field_types, check_finite, check_positive,
                          check_unknown_options)
 
 TASKS = ("full", "blade", "surface")
+OBS_MODES = ("state", "rgb", "depth", "rgbd")
+# The options ``reset(options=...)`` accepts for one episode (validated as EnvConfig fields).
+RESET_OPTIONS = ("wind", "start_offset", "start_noise", "start_progress", "randomization")
+_REFUSED_RESET_OPTIONS = {
+    "turbine": "a turbine variant needs its own planned mission (about a second of planning per "
+               "turbine) and resizes the coverage and metrics; make one environment per turbine",
+}
+_REFUSED_RESET_OPTIONS["turbine_mesh"] = _REFUSED_RESET_OPTIONS["turbine"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +123,15 @@ class EnvConfig:
         alone makes the run reproducible); later seedless resets continue the generator.
     end_hold_s: after the inspection point reaches the end of the path, the episode goes on for
         this long (the drone catches up and the last frames are taken) before it is truncated.
+    randomization: domain randomisation, off (``None``) by default; ``True`` for the default
+        ranges, or a :class:`~wt_inspect_env.randomization.RandomizationConfig` / dict of ranges
+        (airframe, observation noise, command latency; drawn at every reset).
+    obs_mode: ``state`` (the Dict of drone and reference state), or that Dict plus an image from
+        the gimbal camera: ``rgb`` (key ``rgb``, uint8 (h, w, 3)), ``depth`` (key ``depth``,
+        float32 (h, w, 1) in metres, ``depth_far`` where nothing is hit) or ``rgbd`` (both).
+    camera_resolution: ``(width, height)`` of those images [px] (small: they are rendered in
+        software every control step).
+    depth_far: far clipping distance of the rendered images [m] (depth saturates there).
     """
 
     task: str = "full"
@@ -145,6 +163,10 @@ class EnvConfig:
     occlusion: bool = True
     end_hold_s: float = 2.0
     seed: int | None = None
+    randomization: Any = None
+    obs_mode: str = "state"
+    camera_resolution: tuple[int, int] = (84, 84)
+    depth_far: float = 50.0
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -207,6 +229,33 @@ class EnvConfig:
                                  f"planner_spacing and rotor_turn_deg fields")
         if not isinstance(self.occlusion, bool):
             raise ValueError(f"occlusion must be a bool, got {self.occlusion!r}")
+        put("randomization", coerce_randomization(self.randomization))
+        if self.randomization is not None:
+            self.randomization.check_airframe(self.drone)
+        check_choice("obs_mode", self.obs_mode, OBS_MODES)
+        res = self.camera_resolution
+        if (isinstance(res, (str, bytes)) or not hasattr(res, "__len__") or len(res) != 2
+                or any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1024 for v in res)):
+            raise ValueError(f"camera_resolution must be (width, height), two integers in [1, 1024], got {res!r}")
+        put("camera_resolution", (int(res[0]), int(res[1])))
+        check_positive("depth_far", self.depth_far)
+        if self.depth_far <= 0.1:
+            raise ValueError(f"depth_far must exceed the 0.1 m near plane, got {self.depth_far!r}")
+
+    def for_episode(self, options: Mapping[str, Any] | None) -> "EnvConfig":
+        """This configuration with one episode's ``reset(options=...)`` applied, validated as the
+        constructor validates (the fields are re-checked by ``__post_init__``); unknown or
+        unsupported keys are a one-line ``ValueError`` naming them. ``options`` empty or ``None``:
+        ``self``."""
+        if not options:
+            return self
+        if not isinstance(options, Mapping):
+            raise ValueError(f"reset options must be a dict, got {options!r}")
+        refused = sorted(set(options) & set(_REFUSED_RESET_OPTIONS))
+        if refused:
+            raise ValueError(f"reset option {refused[0]!r} is not supported: {_REFUSED_RESET_OPTIONS[refused[0]]}")
+        check_unknown_options("reset", options.keys(), RESET_OPTIONS)
+        return dataclasses.replace(self, **dict(options))
 
     @classmethod
     def from_kwargs(cls, **options: Any) -> "EnvConfig":

@@ -1,10 +1,12 @@
-"""``rgb_array`` rendering: the onboard gimbal-camera image beside a chase view.
+"""Rendering: ``rgb_array`` frames (the onboard gimbal-camera image beside a chase view) and the
+camera observations of the image ``obs_mode``s.
 
-Both come from PyBullet's software renderer (TinyRenderer, no display or GPU needed) on the
-simulator's own client, so they show exactly the collision geometry the drone flies in. The onboard
-view uses the camera's real field of view and gimbal pose; the chase view looks at the drone from
-behind and above. Resolution is small (it is for videos and debugging, not for coverage, which is
-computed geometrically).
+All come from PyBullet's software renderer (TinyRenderer, no display or GPU needed) on the
+simulator's own client, so they show exactly the geometry the drone flies in (the turbine drawn
+with :class:`~wt_inspect_env.texture.SpanTexture`). The onboard view uses the camera's gimbal pose
+and its vertical field of view (the image's aspect is the requested resolution's). Resolution is
+small: ``render`` is for videos and debugging, observations are for learning; coverage is computed
+geometrically, not from these images.
 """
 from __future__ import annotations
 
@@ -19,13 +21,45 @@ if TYPE_CHECKING:  # pragma: no cover
 VIEW_W, VIEW_H = 320, 240
 
 
-def _image(client: int, eye, target, up, fov_deg: float, far: float) -> np.ndarray:
+NEAR = 0.1   # near clipping plane [m]
+
+
+def _render(client: int, eye, target, up, fov_deg: float, far: float, width: int, height: int,
+            flags: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """(rgba (h, w, 4) uint8, depth buffer (h, w) in [0, 1]) of one TinyRenderer view."""
     view = p.computeViewMatrix(list(map(float, eye)), list(map(float, target)), list(map(float, up)),
                                physicsClientId=client)
-    proj = p.computeProjectionMatrixFOV(fov_deg, VIEW_W / VIEW_H, 0.1, far, physicsClientId=client)
-    _, _, rgba, _, _ = p.getCameraImage(VIEW_W, VIEW_H, view, proj, renderer=p.ER_TINY_RENDERER,
-                                        physicsClientId=client)
-    return np.asarray(rgba, dtype=np.uint8).reshape(VIEW_H, VIEW_W, 4)[:, :, :3]
+    proj = p.computeProjectionMatrixFOV(fov_deg, width / height, NEAR, far, physicsClientId=client)
+    _, _, rgba, depth, _ = p.getCameraImage(width, height, view, proj, renderer=p.ER_TINY_RENDERER,
+                                            flags=flags, physicsClientId=client)
+    return (np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4),
+            np.asarray(depth, dtype=np.float32).reshape(height, width))
+
+
+def _image(client: int, eye, target, up, fov_deg: float, far: float) -> np.ndarray:
+    return _render(client, eye, target, up, fov_deg, far, VIEW_W, VIEW_H)[0][:, :, :3]
+
+
+def metric_depth(buffer: np.ndarray, far: float, near: float = NEAR) -> np.ndarray:
+    """Distance along the optical axis [m] from an OpenGL depth buffer in [0, 1] (``far`` where
+    nothing was hit)."""
+    b = np.asarray(buffer, dtype=np.float64)
+    return (far * near / (far - (far - near) * b)).astype(np.float32)
+
+
+def camera_images(client: int, camera, state: np.ndarray, resolution: tuple[int, int], far: float,
+                  rgb: bool = True, depth: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The gimbal camera's view from the drone state ``state`` [p, v_body, q]: ``rgb`` (h, w, 3)
+    uint8 and ``depth`` (h, w) float32 [m, along the optical axis] (``None`` where not asked for).
+    ``camera``: the env's :class:`~wt_inspect_env.camera.GimbalCamera`."""
+    origin, R = camera.pose(state[0:3], state[6:10])
+    fwd, down = R[:, 2], R[:, 1]
+    w, h = resolution
+    # No segmentation mask: it is not used and costs a pass.
+    rgba, buf = _render(client, origin, origin + fwd, -down, camera.config.fov_deg[1], far, w, h,
+                        flags=p.ER_NO_SEGMENTATION_MASK)
+    return (np.ascontiguousarray(rgba[:, :, :3]) if rgb else None,
+            metric_depth(buf, far) if depth else None)
 
 
 def render_views(env: "WindTurbineInspectionEnv") -> np.ndarray:

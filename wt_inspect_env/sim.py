@@ -194,7 +194,7 @@ class QuadrotorSim:
 
     def __init__(self, params: QuadrotorParams | str | None = None,
                  config: SimConfig | None = None, wind: WindField | None = None,
-                 obstacles: Any = None) -> None:
+                 obstacles: Any = None, obstacle_texture: Any = None) -> None:
         if params is None:
             params = get_preset("matrice100")
         elif isinstance(params, str):
@@ -219,11 +219,17 @@ class QuadrotorSim:
         self.rate_gains = gains
         self.mixer = Mixer(params)
         self.rate_controller = RateController(gains, params.inertia, self.physics_dt)
+        self._plant = params
+        self._thrust_scale = 1.0
         k = SubstepConstants.of(params, config, self.mixer)
         self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
         self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
         self._rotor_pos = [tuple(float(c) for c in r) for r in params.rotor_positions]
 
+        # Optional look of the obstacles in rendered images (e.g. texture.SpanTexture: .uvs and
+        # .image); drawing only, physics and rays use the collision shapes.
+        self.obstacle_texture = obstacle_texture
+        self._texture_id = -1
         self._obstacle_key: Any = obstacles
         self._obstacle_arrays: tuple[list, list] | None = (
             None if obstacles is None else _mesh_arrays(obstacles))
@@ -240,6 +246,7 @@ class QuadrotorSim:
         """Connect a client of the given mode and create drone, ground and obstacles in it."""
         params, config = self.params, self.config
         cid = self._client = new_client(mode, self.physics_dt)
+        self._texture_id = -1
         try:
             self._body = create_drone_body(cid, params)
             # Own collision group: still collides with everything, but ray tests (camera
@@ -280,6 +287,8 @@ class QuadrotorSim:
         self._client = -1
         self._build_world(p.GUI)
         self._gui = True
+        if self._plant is not self.params:
+            self.set_plant(self._plant, self._thrust_scale)
         self._place(state, rates)
         self._steps, self._f, self._thrust = steps, f, thrust
         ctrl.i, ctrl.d, ctrl.prev = saved
@@ -353,10 +362,22 @@ class QuadrotorSim:
         if shape < 0:  # pragma: no cover
             raise ValueError("PyBullet rejected the obstacle mesh")
         # A visual shape of the same triangles, so rgb_array renders show the turbine.
-        visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx,
-                                     rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
+        tex = self.obstacle_texture
+        if tex is None:
+            visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx,
+                                         rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
+        else:
+            from .texture import load_texture, vertex_normals
+            v = np.asarray(verts)
+            visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx, uvs=tex.uvs(v).tolist(),
+                                         normals=vertex_normals(v, np.asarray(idx)).tolist(), physicsClientId=cid)
         self._obstacle_shape = shape
         self._obstacle = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
+        if tex is not None:
+            if self._texture_id < 0:
+                self._texture_id = load_texture(cid, tex.image())
+            p.changeVisualShape(self._obstacle, -1, textureUniqueId=self._texture_id, rgbaColor=(1, 1, 1, 1),
+                                physicsClientId=cid)
         if key is not None:
             if len(self._obstacle_cache) >= _MAX_CACHED_OBSTACLES:
                 old_key = next(iter(self._obstacle_cache))
@@ -372,6 +393,42 @@ class QuadrotorSim:
     @property
     def ground_id(self) -> int:
         return self._ground
+
+    # ------------------------------------------------------------------ plant
+    @property
+    def plant(self) -> QuadrotorParams:
+        """The airframe PyBullet integrates (``params`` unless :meth:`set_plant` changed it)."""
+        return self._plant
+
+    @property
+    def thrust_scale(self) -> float:
+        return self._thrust_scale
+
+    def set_plant(self, plant: QuadrotorParams | None = None, thrust_scale: float = 1.0) -> None:
+        """Fly a different airframe than the nominal ``params`` (domain randomisation).
+
+        The *physics* - body mass and inertia, motor lag, drag, the torque rows of the rotor
+        wrench - follow ``plant``, and each rotor produces ``thrust_scale`` times the thrust it was
+        commanded; the *controller side* - rate gains, the rate loop's inertia, the mixer's
+        allocation and limits - keeps ``params``, as an autopilot tuned for the nominal airframe
+        would. ``set_plant()`` restores the nominal airframe exactly. Takes effect at once; call it
+        before :meth:`reset` (which starts the rotors at the plant's hover thrust).
+        """
+        self._check_open()
+        plant = self.params if plant is None else plant
+        if not isinstance(plant, QuadrotorParams):
+            raise ValueError(f"plant must be a QuadrotorParams or None, got {plant!r}")
+        check_positive("thrust_scale", thrust_scale)
+        if plant.rotor_positions.tolist() != self.params.rotor_positions.tolist() or \
+                plant.rotor_spin != self.params.rotor_spin:
+            raise ValueError("plant must keep the nominal rotor layout (arm_length, rotor_spin)")
+        mixer = self.mixer if plant is self.params else Mixer(plant)
+        k = SubstepConstants.of(plant, self.config, mixer)
+        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
+        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
+        self._plant, self._thrust_scale = plant, float(thrust_scale)
+        p.changeDynamics(self._body, -1, mass=plant.mass, localInertiaDiagonal=list(plant.inertia),
+                         physicsClientId=self._client)
 
     # ------------------------------------------------------------------ reset / state
     def reset(self, state: Any, body_rates: Any = None, seed: int | None = None) -> None:
@@ -394,8 +451,10 @@ class QuadrotorSim:
         self._place(x, w_b)
         self._steps = 0
         self.rate_controller.reset(w_b.tolist())
-        self._f = [self.params.weight / 4.0] * 4
-        self._thrust = self.params.weight          # rate_loop=False: lagged collective
+        # The rotors start holding the plant's weight (= params' unless set_plant changed it).
+        hover = self._plant.weight / self._thrust_scale
+        self._f = [hover / 4.0] * 4
+        self._thrust = hover                        # rate_loop=False: lagged collective
         self._contacts = []
         self._in_collision = False
         self._last_wind = self._wind_at(0.0)
@@ -446,8 +505,9 @@ class QuadrotorSim:
 
     @property
     def rotor_thrusts(self) -> np.ndarray:
-        """(4,) current rotor thrusts [N] (after motor lag and saturation)."""
-        return np.array(self._f)
+        """(4,) current rotor thrusts [N] (after motor lag and saturation; times the plant's
+        ``thrust_scale``)."""
+        return np.array(self._f) * self._thrust_scale
 
     @property
     def wind_velocity(self) -> np.ndarray:
@@ -509,6 +569,8 @@ class QuadrotorSim:
         mix = mixer.mix
         alpha, beta = self._alpha, self._beta
         (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
+        ts = self._thrust_scale
+        scaled = ts != 1.0
         has_drag = self._has_drag
         dlx, dly, dlz = self._lin_drag
         dqx, dqy, dqz = self._quad_drag
@@ -539,6 +601,11 @@ class QuadrotorSim:
             f1 += alpha * (c1 - f1)
             f2 += alpha * (c2 - f2)
             f3 += alpha * (c3 - f3)
+            if scaled:                      # a randomised plant's thrust factor (set_plant)
+                g0 *= ts
+                g1 *= ts
+                g2 *= ts
+                g3 *= ts
             if has_drag:  # inlined _drag_body: v_rel in body axes, linear + quadratic drag
                 ax_, ay_, az_ = vel[0] - wx, vel[1] - wy, vel[2] - wz
                 bx = R[0] * ax_ + R[3] * ay_ + R[6] * az_
@@ -578,7 +645,8 @@ class QuadrotorSim:
     def _run_imposed_rates(self, pc, qc, rc, T, wx, wy, wz) -> None:
         cid, body = self._client, self._body
         alpha, beta = self._alpha, self._beta
-        Jx, Jy, Jz = self.params.inertia
+        Jx, Jy, Jz = self._plant.inertia
+        ts = self._thrust_scale
         touched = False
         for _ in range(self._n_sub):
             R = p.getMatrixFromQuaternion(self._quat)
@@ -596,6 +664,8 @@ class QuadrotorSim:
                 dx, dy, dz = self._drag_body(R, *self._vel, wx, wy, wz)
             else:
                 dx = dy = dz = 0.0
+            if ts != 1.0:
+                thrust *= ts
             p.applyExternalForce(body, -1, (dx, dy, dz + thrust), (0.0, 0.0, 0.0),
                                  p.LINK_FRAME, physicsClientId=cid)
             p.applyExternalTorque(body, -1, gyro, p.LINK_FRAME, physicsClientId=cid)

@@ -78,6 +78,11 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         if "wind" in options and winds is not None:
             raise ValueError("give either wind (all drones) or winds (one per drone), not both")
         self.config = cfg = EnvConfig.from_kwargs(**options)
+        if cfg.obs_mode != "state" or cfg.randomization is not None:
+            bad = "obs_mode" if cfg.obs_mode != "state" else "randomization"
+            raise ValueError(f"{bad} is not supported by the vector env (single WindTurbineInspectionEnv only: its "
+                             "batched simulator shares one airframe and renders no images); got "
+                             f"{bad}={getattr(cfg, bad)!r}")
         if winds is not None:
             if isinstance(winds, (str, bytes)) or not isinstance(winds, Sequence) or len(winds) != n:
                 got = len(winds) if isinstance(winds, Sequence) and not isinstance(winds, (str, bytes)) else winds
@@ -157,7 +162,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         if options:
-            raise ValueError(f"reset options are not supported, got {options!r}")
+            raise ValueError(f"reset options are not supported by the vector env (single WindTurbineInspectionEnv "
+                             f"only), got {sorted(options)}")
         n = self.num_envs
         if seed is None:
             seeds: list[int | None] = ([self.config.seed + i for i in range(n)]
