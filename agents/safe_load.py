@@ -334,9 +334,11 @@ def _stem(path: str | Path) -> Path:
     return p
 
 
-def verify_shipped(path: str | Path, models_dir: Path = MODELS_DIR) -> None:
-    """For a model in ``models_dir`` (the shipped models): ValueError naming the file unless each
-    of its files is listed in the manifest with the same SHA-256. Other paths: nothing to check."""
+def verify_shipped(path: str | Path, models_dir: Path | None = None) -> None:
+    """For a model in ``models_dir`` (default: the shipped models' directory): ValueError naming
+    the file unless each of its files is listed in the manifest with the same SHA-256. Other
+    paths: nothing to check."""
+    models_dir = MODELS_DIR if models_dir is None else Path(models_dir)
     stem = _stem(path)
     try:
         if stem.resolve().parent != models_dir.resolve():
@@ -366,9 +368,10 @@ def verify_shipped(path: str | Path, models_dir: Path = MODELS_DIR) -> None:
                              f"{want[:16]}...: the file was changed; reinstall the package")
 
 
-def write_manifest(models_dir: Path = MODELS_DIR) -> Path:
-    """(Re)write ``models_dir/MANIFEST.json`` with the digest of every shipped model's files -
-    run after adding or retraining a shipped model."""
+def write_manifest(models_dir: Path | None = None) -> Path:
+    """(Re)write ``models_dir/MANIFEST.json`` (default: the shipped models') with the digest of
+    every model's files - run after adding or retraining a shipped model."""
+    models_dir = MODELS_DIR if models_dir is None else Path(models_dir)
     files = {}
     for z in sorted(models_dir.glob("*.zip")):
         for f in _model_files(z.with_suffix("")):
