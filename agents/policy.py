@@ -16,7 +16,8 @@ observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> netw
 (deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action;
 the network's action is held for ``action_repeat`` control steps and decoded at each of them with
 the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation harness resolves ``ppo:PATH`` /
-``sac:PATH`` controller names through it.
+``sac:PATH`` controller names through it. :func:`agent_env` is the same pipeline as an env wrapper,
+for code that drives the bare SB3 model itself (``model.predict(obs)`` on the wrapped env).
 """
 from __future__ import annotations
 
@@ -33,7 +34,8 @@ from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice
 
 from .safe_load import load_sb3_model, save_vecnormalize, vecnormalize_path, verify_shipped
-from .wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction
+from .wrappers import (AgentObservationEnv, AgentSpec, FeatureEncoder, FeatureNormalization, InspectionAgentEnv,
+                       ResidualHoverAction)
 
 ALGOS: tuple[str, ...] = ("ppo", "sac")
 SIDECAR_FORMAT = 1
@@ -115,16 +117,8 @@ class SB3Policy(Policy):
         self.encoder = FeatureEncoder(spec.features, standoff=standoff, dt=dt, max_rate=scaling.max_rate)
         self.decoder = ResidualHoverAction(spec.action, scaling)
         n = spec.features.size
-        if obs_normalization is not None:
-            self._mean = np.asarray(obs_normalization["mean"], dtype=np.float64)
-            self._std = np.sqrt(np.asarray(obs_normalization["var"], dtype=np.float64)
-                                + float(obs_normalization["epsilon"]))
-            self._clip = float(obs_normalization["clip_obs"])
-            if self._mean.shape != (n,) or self._std.shape != (n,):
-                raise ValueError(f"obs_normalization must have {n} entries (the spec's feature size), "
-                                 f"got {self._mean.shape[0]}")
-        else:
-            self._mean = None
+        self.normalization = (None if obs_normalization is None
+                              else FeatureNormalization.from_sidecar(obs_normalization, n))
         expected = getattr(model, "observation_space", None)
         if expected is not None and tuple(expected.shape) != (n,):
             raise ValueError(f"model expects observations of shape {tuple(expected.shape)}, "
@@ -139,9 +133,9 @@ class SB3Policy(Policy):
         self.last_stats = None
 
     def normalize(self, features: np.ndarray) -> np.ndarray:
-        if self._mean is None:
+        if self.normalization is None:
             return features.astype(np.float32)
-        return np.clip((features - self._mean) / self._std, -self._clip, self._clip).astype(np.float32)
+        return self.normalization(features)
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
         o = check_observation(obs)
@@ -190,5 +184,23 @@ def load_sb3_policy(algo: str, path: str | Path, env=None, *, trust_model: bool 
                      obs_normalization=doc.get("obs_normalization"), algo=algo)
 
 
-__all__ = ["ALGOS", "SB3Policy", "load_sb3_policy", "save_agent", "load_sidecar", "sidecar_paths",
+def agent_env(env, path: str | Path) -> AgentObservationEnv:
+    """``env`` as the saved agent ``path`` (a ``NAME.zip`` with its sidecar, or a shipped model's
+    name such as ``"ppo_surface"``) sees it: observations are the normalised feature vectors its
+    network takes, actions are its network's outputs. So a plain stable-baselines3 model flies the
+    env with ``model.predict(obs)`` and ``env.step(action)`` - the same flight as
+    :func:`load_sb3_policy` on the unwrapped env. Each step holds the action for the agent's
+    ``action_repeat`` control steps (rewards summed). The model itself can be loaded with
+    ``load_sb3_policy(algo, path).model`` (no code from the file runs) or with SB3's
+    ``PPO.load(path)`` (which unpickles)."""
+    from .registration import resolve_model_path
+    zip_path = resolve_model_path(str(path))
+    doc = load_sidecar(zip_path)
+    spec = AgentSpec.from_dict(doc["spec"])
+    norm = doc.get("obs_normalization")
+    return AgentObservationEnv(InspectionAgentEnv(env, spec),
+                               None if norm is None else FeatureNormalization.from_sidecar(norm, spec.features.size))
+
+
+__all__ = ["ALGOS", "SB3Policy", "load_sb3_policy", "agent_env", "save_agent", "load_sidecar", "sidecar_paths",
            "algo_class", "env_interface"]

@@ -500,3 +500,55 @@ class EpisodeVariants(gym.Env):
         for e in self.envs:
             e.close()
         super().close()
+
+
+class FeatureNormalization:
+    """The observation normalisation a saved agent was trained behind: VecNormalize's running mean
+    and variance frozen at the end of training, ``clip((x - mean) / sqrt(var + eps), -clip, clip)``.
+    The network only ever saw normalised features, so every deployment path (the controller
+    :class:`agents.policy.SB3Policy`, the :class:`AgentObservationEnv` for plain SB3 ``predict``)
+    applies these same numbers, from the model's sidecar."""
+
+    def __init__(self, mean: Any, var: Any, *, clip: float, epsilon: float, size: int) -> None:
+        self.mean = check_array("obs_normalization mean", mean, (None,))
+        v = check_array("obs_normalization var", var, (None,))
+        if self.mean.shape != (size,) or v.shape != (size,):
+            raise ValueError(f"obs_normalization must have {size} entries (the spec's feature size), "
+                             f"got {self.mean.shape[0]}")
+        self.std = np.sqrt(v + check_positive("obs_normalization epsilon", epsilon, allow_zero=True))
+        self.clip = check_positive("obs_normalization clip_obs", clip)
+
+    @classmethod
+    def from_sidecar(cls, doc: Mapping[str, Any], size: int) -> "FeatureNormalization":
+        """From a sidecar's ``obs_normalization`` entry (``mean``, ``var``, ``clip_obs``, ``epsilon``)."""
+        return cls(doc["mean"], doc["var"], clip=doc["clip_obs"], epsilon=doc["epsilon"], size=size)
+
+    def __call__(self, features: np.ndarray) -> np.ndarray:
+        return np.clip((features - self.mean) / self.std, -self.clip, self.clip).astype(np.float32)
+
+
+class AgentObservationEnv(gym.ObservationWrapper):
+    """An inspection env exactly as a saved agent sees it, so the bare stable-baselines3 model works
+    on it: ``model.predict(obs)`` takes this wrapper's observation and its action goes straight to
+    ``step``. Why it is needed: the model's network maps the agent's normalised feature vector
+    (27 numbers for the shipped agents) to a residual-to-hover action held for ``action_repeat``
+    control steps, while the env speaks a Dict observation and a normalised body-rate command.
+
+    It is :class:`InspectionAgentEnv` (features, action decoding and holding, the training rewards)
+    followed by the model's :class:`FeatureNormalization`; build it with
+    :func:`agents.policy.agent_env`, which reads both from the model's sidecar. The trajectory is
+    the one :class:`agents.policy.SB3Policy` flies on the raw env (tested)."""
+
+    def __init__(self, env: InspectionAgentEnv, normalization: FeatureNormalization | None) -> None:
+        if not isinstance(env, InspectionAgentEnv):
+            raise ValueError(f"env must be an InspectionAgentEnv, got {type(env).__name__}")
+        super().__init__(env)
+        self.normalization = normalization
+        if normalization is not None:
+            c = normalization.clip
+            self.observation_space = spaces.Box(-c, c, shape=env.observation_space.shape, dtype=np.float32)
+
+    def observation(self, observation: np.ndarray) -> np.ndarray:
+        if self.normalization is None:
+            return np.asarray(observation, dtype=np.float32)
+        return self.normalization(observation)
