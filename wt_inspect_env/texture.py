@@ -61,7 +61,9 @@ class SpanTexture:
         n = self.n_bands
         px = max(1, min(8, _MAX_WIDTH // n))
         k = np.arange(n)
-        colour = _PALETTE[(k * 7 + (k // 3) * 5 + (k * k) // 4) % len(_PALETTE)]
+        # Each band steps 1-3 colours on from the last (irregularly), so neighbours always differ.
+        index = np.cumsum(1 + (k * k // 3) % 3) % len(_PALETTE)
+        colour = _PALETTE[index]
         colour[k % self.major_every == 0] = _LINE
         row = np.repeat(colour, px, axis=0)
         return np.repeat(row[None], 8, axis=0)
