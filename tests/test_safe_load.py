@@ -71,6 +71,7 @@ def _craft_data(path: Path, key: str, marker: Path, keep_description: bool = Fal
 
 
 # --------------------------------------------------------------------------- shipped models
+@pytest.mark.slow
 def test_shipped_models_act_exactly_as_before_the_conversion():
     """Actions and network means on 32 fixed feature vectors equal those recorded with the old
     pickle-based loader (tests/data/shipped_model_actions.npz, recorded before the conversion)."""
