@@ -77,9 +77,12 @@ def sb3_algo_kwargs(algo_kwargs: Mapping[str, Any]) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------ the zip's data entries
-def serialized_entries(zip_path: str | Path) -> dict[str, dict[str, Any]]:
-    """The entries of a SB3 zip's ``data`` that SB3 would unpickle, with SB3's plain-text
-    description of each (every key but ``:serialized:``). Reads JSON only."""
+def _is_serialized(value: Any) -> bool:
+    return isinstance(value, dict) and ":serialized:" in value
+
+
+def read_data(zip_path: str | Path) -> dict[str, Any]:
+    """The ``data`` JSON of a SB3 zip as it is stored (nothing deserialised)."""
     p = Path(zip_path)
     try:
         with zipfile.ZipFile(p) as z:
@@ -92,8 +95,14 @@ def serialized_entries(zip_path: str | Path) -> dict[str, dict[str, Any]]:
         raise ValueError(f"model file {str(p)!r}: its 'data' member is not valid JSON: {exc}") from None
     if not isinstance(doc, dict):
         raise ValueError(f"model file {str(p)!r}: its 'data' member is not a JSON object")
+    return doc
+
+
+def serialized_entries(zip_path: str | Path) -> dict[str, dict[str, Any]]:
+    """The entries of a SB3 zip's ``data`` that SB3 would unpickle, with SB3's plain-text
+    description of each (every key but ``:serialized:``). Reads JSON only."""
     return {k: {kk: vv for kk, vv in v.items() if kk != ":serialized:"}
-            for k, v in doc.items() if isinstance(v, dict) and ":serialized:" in v}
+            for k, v in read_data(zip_path).items() if _is_serialized(v)}
 
 
 def _describe(obj: Any) -> dict[str, Any]:
@@ -124,8 +133,9 @@ _COMPARED: dict[str, tuple[str, ...] | None] = {
 }
 
 
-def _rebuilders(cls: type, doc: Mapping[str, Any]) -> dict[str, Callable[[], Any]]:
-    """How to rebuild each entry SB3 serialises for our PPO / SAC agents, from the sidecar."""
+def _rebuilders(cls: type, doc: Mapping[str, Any], data: Mapping[str, Any]) -> dict[str, Callable[[], Any]]:
+    """How to rebuild each entry SB3 serialises for our PPO / SAC agents, from the sidecar (and
+    the file's plain entries: a learning rate stored as a number is that number)."""
     import numpy as np
     from gymnasium import spaces
     from stable_baselines3.common.utils import FloatSchedule
@@ -144,6 +154,9 @@ def _rebuilders(cls: type, doc: Mapping[str, Any]) -> dict[str, Callable[[], Any
         return sb3_algo_kwargs(from_recipe("algo_kwargs"))
 
     def lr() -> Any:
+        stored = data.get("learning_rate")
+        if isinstance(stored, (int, float)) and not isinstance(stored, bool):
+            return float(stored)
         return algo_kw().get("learning_rate", 3e-4)
 
     def schedule(name: str, default: Any) -> Callable[[], Any]:
@@ -179,9 +192,11 @@ def rebuild_custom_objects(cls: type, zip_path: str | Path, doc: Mapping[str, An
     recipe in the sidecar); ValueError if a rebuilt entry disagrees with the file's description.
     """
     p = str(zip_path)
-    builders = _rebuilders(cls, doc)
+    data = read_data(zip_path)
+    builders = _rebuilders(cls, doc, data)
     out: dict[str, Any] = {}
-    for name, described in serialized_entries(zip_path).items():
+    entries = {k: {kk: vv for kk, vv in v.items() if kk != ":serialized:"} for k, v in data.items() if _is_serialized(v)}
+    for name, described in entries.items():
         if name not in builders:
             raise UnsafeModelError(f"model file {p!r}: entry {name!r} of its data would need unpickling "
                                    f"(type {described.get(':type:', '?')}) and cannot be rebuilt from the sidecar; "
@@ -383,6 +398,6 @@ def write_manifest(models_dir: Path | None = None) -> Path:
     return path
 
 
-__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "rebuild_custom_objects", "serialized_entries",
+__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "rebuild_custom_objects", "serialized_entries", "read_data",
            "check_weights_only", "save_vecnormalize", "load_vecnormalize", "vecnormalize_path", "verify_shipped",
            "write_manifest", "sha256_file", "sb3_policy_kwargs", "sb3_algo_kwargs", "MODELS_DIR", "TRUST_HINT"]

@@ -5,6 +5,7 @@ import argparse
 import json
 import sys
 
+from wt_inspect_env.atomic_io import check_out_dir
 from wt_inspect_env.env_config import TASKS
 
 from .policy import ALGOS
@@ -30,7 +31,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
     p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
     p.add_argument("--trust-model", action="store_true",
-                   help="WARNING: with --resume, also load a checkpoint that needs unpickling (an old "
+                   help="WARNING: with --resume (or --seeds resuming unfinished seeds), also load a checkpoint "
+                        "that needs unpickling (an old "
                         ".vecnormalize.pkl, a zip with entries that cannot be rebuilt) - this runs code from the "
                         "file; only for files you made yourself or fully trust")
     p.add_argument("--seed", type=int, default=0)
@@ -46,6 +48,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     args = build_parser(prog).parse_args(argv)
+    try:   # before any work: an existing file or an uncreatable directory as --out is one line
+        check_out_dir(args.out, "--out")
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
     if args.algo == "bc":
         return _clone(args, prog)
     if args.timesteps is None:
@@ -86,7 +93,7 @@ def _seeds(args, prog: str) -> int:
         doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,
                           timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe,
                           max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
-                          progress_bar=not args.no_progress)
+                          progress_bar=not args.no_progress, trust_model=args.trust_model)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
