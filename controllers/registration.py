@@ -58,6 +58,9 @@ vtnmpc_later = PolicyEntry(lambda env: _vtnmpc_policy(env, weights="later_tuning
 vtnmpc_dob = PolicyEntry(lambda env: _vtnmpc_policy(env, disturbance_observer=True),
                          "VT-NMPC, paper weights + disturbance observer (not in the paper)",
                          display_name="VT-NMPC + observer")
+vtnmpc_dob_gimbal = PolicyEntry(lambda env: _vtnmpc_policy(env, disturbance_observer=True, heading_model="camera"),
+                                "VT-NMPC, paper weights + observer + gimbal-camera heading (VT-NMPC+ without the "
+                                "chord residual; an ablation step)", display_name="VT-NMPC + observer + gimbal")
 vtnmpc_plus = PolicyEntry(_vtnmpc_plus_policy,
                           "VT-NMPC+: observer + gimbal-camera heading + chord heading residual (not in the paper)",
                           display_name="VT-NMPC+")

@@ -14,13 +14,12 @@ import importlib
 import importlib.metadata
 import sys
 
-from .extras import missing_extra
-
 DIST_NAME = "wt-inspect"   # the distribution (pyproject ``[project] name``) whose version --version prints
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
     "evaluate": ("wt_inspect.evaluation.cli", "run controllers on a scenario, write the table and figures"),
+    "ablation": ("wt_inspect.ablation", "paper-faithful -> project default, one change at a time"),
     "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
     "demos": ("wt_inspect.demonstrations", "record expert (MPC) demonstrations as a Minari dataset"),
 }
@@ -54,15 +53,16 @@ def _usage() -> str:
 
 def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
     module_name, _ = table[name]
-    try:   # the import and the run: a subcommand may import an optional dependency lazily
+    try:
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        return int(module.main(argv, prog=prog) or 0)
-        msg = missing_extra(exc)
-        if msg is None:
-            raise
-        print(f"{prog}: error: {msg}", file=sys.stderr)
-        return 2
+        missing = exc.name or ""
+        if missing.split(".")[0] in {"torch", "stable_baselines3", "ray", "tensorboard"}:
+            print(f"{prog}: needs the optional dependency '{missing}'; "
+                  "install it with: pip install 'wt-inspect[rl]' (or [ray])", file=sys.stderr)
+            return 2
+        raise
+    return int(module.main(argv, prog=prog) or 0)
 
 
 def main(argv: list[str] | None = None) -> int:

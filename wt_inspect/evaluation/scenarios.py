@@ -88,6 +88,13 @@ SCENARIOS: dict[str, Scenario] = {
         (0.0, 4.0, 7.0)),
 }
 
+# The authors' conditions on the smaller tasks (the ablation's quick rows, see wt_inspect.ablation).
+for _task in ("blade", "surface"):
+    _pf = SCENARIOS["paper-faithful"]
+    SCENARIOS[f"paper-faithful-{_task}"] = Scenario(
+        f"paper-faithful-{_task}", f"{SCENARIOS[_task].description}, under the paper-faithful conditions",
+        {**_pf.options, "task": _task}, _pf.winds, _pf.notes)
+
 # The paper's numbers. ``paper`` at 4 m/s: Table "Simulation results" plus the distances in the
 # text; at 0 m/s the text says all three reach 100 % coverage. ``lab``: Table "Statistical analysis
 # of the experimental results" (three real flights, 4 m/s blowing tunnel). Solve times: measured on
