@@ -49,7 +49,9 @@ def _check(algo: str):
             check_safe(algo_class(algo), model, load_sidecar(model))
         except ModuleNotFoundError as exc:
             if exc.name and exc.name.split(".")[0] in {"torch", "stable_baselines3"}:
-                return   # the missing optional dependency is reported, in one line, by the loader
+                # refused here, before any run starts or any output directory is made
+                raise ValueError(f"needs the optional dependency {exc.name.split('.')[0]!r}; install it "
+                                 "with: pip install 'wt-inspect[rl]'") from None
             raise
     return check
 

@@ -14,6 +14,8 @@ import importlib
 import importlib.metadata
 import sys
 
+from .extras import missing_extra
+
 DIST_NAME = "wt-inspect"   # the distribution (pyproject ``[project] name``) whose version --version prints
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -53,16 +55,15 @@ def _usage() -> str:
 
 def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
     module_name, _ = table[name]
-    try:
+    try:   # the import and the run: a subcommand may import an optional dependency lazily
         module = importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
-        missing = exc.name or ""
-        if missing.split(".")[0] in {"torch", "stable_baselines3", "ray", "tensorboard"}:
-            print(f"{prog}: needs the optional dependency '{missing}'; "
-                  "install it with: pip install 'wt-inspect[rl]' (or [ray])", file=sys.stderr)
-            return 2
-        raise
-    return int(module.main(argv, prog=prog) or 0)
+        return int(module.main(argv, prog=prog) or 0)
+        msg = missing_extra(exc)
+        if msg is None:
+            raise
+        print(f"{prog}: error: {msg}", file=sys.stderr)
+        return 2
 
 
 def main(argv: list[str] | None = None) -> int:

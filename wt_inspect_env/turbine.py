@@ -60,6 +60,12 @@ from .atomic_io import write_bytes_atomic
 from .validation import check_array, check_field_types, check_finite, check_positive, check_unknown_options
 
 MAX_TRIANGLES = 1_000_000     # a mesh step that would need more triangles is rejected
+# Size bounds of a generated turbine [m], about 1.5x the largest built: blades of ~150 m (26 MW
+# class, 310 m rotor) and hub heights of ~180 m. The planner's clearance checks grow in time and
+# memory with the turbine's size (a MemoryError on huge turbines was reported in issue 17); the
+# bound turns such a request into a one-line error naming the field.
+MAX_BLADE_LENGTH = 200.0
+MAX_TOWER_HEIGHT = 300.0
 N_BLADES = 3
 CYLINDER_SECTIONS = 24        # facets around the tower and hub cylinders
 FACE_NAMES = ("front", "back", "edge+", "edge-")
@@ -222,6 +228,9 @@ class TurbineSpec:
             if getattr(self, k) is None:
                 put(k, v)
         put("tower_height", check_positive("tower_height", self.tower_height))
+        if self.tower_height > MAX_TOWER_HEIGHT:
+            raise ValueError(f"tower_height must be at most {MAX_TOWER_HEIGHT:g} m (1.5x the tallest hub height "
+                             f"built), got {self.tower_height!r}")
         shape = None
         if self.blade is not None:
             from .blade_geometry import BladeShape
@@ -238,6 +247,9 @@ class TurbineSpec:
             if getattr(self, k) is None:
                 put(k, v)
         put("blade_length", check_positive("blade_length", self.blade_length))
+        if self.blade_length > MAX_BLADE_LENGTH:
+            raise ValueError(f"blade_length must be at most {MAX_BLADE_LENGTH:g} m (1.5x the longest blade "
+                             f"built), got {self.blade_length!r}")
         put("blade_width", check_positive("blade_width", self.blade_width))
         if self.blade_width >= self.blade_length:
             raise ValueError(f"blade_width must be smaller than blade_length ({self.blade_length!r}), "

@@ -232,7 +232,12 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     n_resumed = len(done)
 
     def finished(res: RunResult) -> None:
-        save_run(res, out_dir / "runs" / res.spec.filename)
+        try:
+            save_run(res, out_dir / "runs" / res.spec.filename)
+        except OSError as exc:   # the disk went read-only or full mid-sweep: one line, runs kept
+            raise OutputDirError(f"cannot write run file {str(out_dir / 'runs' / res.spec.filename)!r}: "
+                                 f"{exc.strerror or exc}; the {len(done)} run(s) finished before are kept - "
+                                 "free the disk and rerun the same command to resume") from None
         res.arrays = {}   # keep memory flat; figures reload what they draw
         done[res.spec.filename] = res
         if on_result is not None:
@@ -268,19 +273,52 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         results = [done[s.filename] for s in specs if s.filename in done]
         if results:
             ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
-            write_csv(results, out_dir / "results.csv")
-            write_markdown(results, ctx, out_dir / "results.md")
+            with contextlib.suppress(OSError):   # an unwritable disk is what is being reported
+                write_csv(results, out_dir / "results.csv")
+                write_markdown(results, ctx, out_dir / "results.md")
         raise
     results = [done[s.filename] for s in specs]
-    files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
-    if figures:
-        from .figures import make_figures   # matplotlib only when drawing
-        files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario,
-                                        figure_format)
-    ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
-    files["md"] = write_markdown(results, ctx, out_dir / "results.md")
+    try:
+        files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
+        if figures:
+            from .figures import make_figures   # matplotlib only when drawing
+            files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario,
+                                            figure_format)
+        stale = stale_files(out_dir, specs, files.get("figures"))
+        if stale:
+            msg = (f"{len(stale)} file(s) in {out_dir} are not from this sweep (left by an earlier, different "
+                   f"one in the same --out; not read, not in these tables): " + ", ".join(stale)
+                   + " - delete them or use a fresh --out")
+            if progress:
+                print(f"warning: {msg}", file=sys.stderr)
+            ctx.notes.append(f"Warning: {msg}")
+        files["stale"] = stale
+        ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
+        files["md"] = write_markdown(results, ctx, out_dir / "results.md")
+    except OSError as exc:
+        raise OutputDirError(f"cannot write the results to {str(out_dir)!r}: {exc.strerror or exc}; the run files "
+                             "are kept - rerun the same command to write the tables") from None
     return Evaluation(out=out_dir, results=results, n_ran=ctx.n_ran, n_resumed=n_resumed,
                       wall_time_s=ctx.wall_time_s, files=files)
+
+
+FIGURE_SUFFIXES = (".png", ".pdf", ".svg")
+
+
+def stale_files(out_dir: Path, specs: Sequence[RunSpec], figures_written: Iterable[Any] | None) -> list[str]:
+    """Files in ``out_dir`` that this sweep neither wrote nor read (paths relative to it, sorted):
+    run files of other specs in ``runs/`` and, when it drew figures (``figures_written`` not
+    None), figures it did not draw. A reused ``--out`` of a different sweep (other controllers,
+    winds, options) keeps them, and a reader of the directory would take them for this sweep's -
+    so results.md names them (they are not deleted: they may be the only copy of an expensive run)."""
+    own_runs = {s.filename for s in specs}
+    own_figs = {Path(f).name for f in figures_written or ()}
+    out = [f"runs/{p.name}" for p in sorted((out_dir / "runs").glob("*.npz"))
+           if p.name not in own_runs and not p.name.startswith(".")]   # .NAME.tmp.npz: a write in flight
+    if figures_written is not None:
+        out += [p.name for p in sorted(out_dir.iterdir())
+                if p.is_file() and p.suffix in FIGURE_SUFFIXES and p.name not in own_figs]
+    return out
 
 
 def _remove_stale_temporaries(runs_dir: Path, min_age_s: float = 60.0) -> None:

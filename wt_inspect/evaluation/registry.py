@@ -26,6 +26,8 @@ from typing import Any, Callable, Mapping
 
 from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry
 
+from ..extras import missing_extra
+
 PolicyFactory = Callable[[Any], Any]
 
 
@@ -106,14 +108,21 @@ def _trust(entry: PolicyEntry, trust_model: bool) -> dict[str, bool]:
 def check_controller(name: str, *, trust_model: bool = False) -> None:
     """ValueError listing the valid names unless ``name`` resolves (cheap: nothing is built;
     an entry's own ``check`` validates its argument, e.g. that a model file exists and loads
-    without running code from it unless ``trust_model``)."""
+    without running code from it unless ``trust_model``). A missing optional dependency (``ppo:``
+    without the ``rl`` extra) is a ValueError naming it and the extra, raised here - before any run."""
     key, arg = split_name(name)
-    entry = _load(key)
-    if arg is not None and entry.check is not None:
-        try:
-            entry.check(arg, **_trust(entry, trust_model))
-        except ValueError as exc:
-            raise ValueError(f"controller {name!r}: {exc}") from None
+    try:
+        entry = _load(key)
+        if arg is not None and entry.check is not None:
+            try:
+                entry.check(arg, **_trust(entry, trust_model))
+            except ValueError as exc:
+                raise ValueError(f"controller {name!r}: {exc}") from None
+    except ModuleNotFoundError as exc:
+        msg = missing_extra(exc)
+        if msg is None:
+            raise
+        raise ValueError(f"controller {name!r} {msg}") from None
 
 
 def fingerprint(name: str) -> str:

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from ..atomic_io import atomic_paths, check_out_dir
 from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection
 from ..planner.config import STANDOFF_MODES
@@ -75,6 +76,7 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
     args = build_parser(prog).parse_args(argv)
     out = Path(args.out)
     try:
+        check_out_dir(out, "--out")
         t0 = time.perf_counter()
         turbine = build_turbine(TurbineSpec(**_picked(args, _SPEC_ARGS)))
         t_build = time.perf_counter() - t0
@@ -82,15 +84,27 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    if out.exists() and not out.is_dir():
-        print(f"{prog}: error: --out {str(out)!r} exists and is not a directory", file=sys.stderr)
+    except MemoryError:
+        print(f"{prog}: error: out of memory building or planning this turbine; use a larger --mesh-step "
+              f"or --spacing, or a smaller turbine", file=sys.stderr)
         return 2
-    out.mkdir(parents=True, exist_ok=True)
-    files = {"turbine": str(turbine.export(out / "turbine.stl")),
-             "path": str(plan.to_csv(out / "path.csv"))}
+    names = {"turbine": "turbine.stl", "path": "path.csv"}
     if not args.no_plot:
-        from ..planner.plot import save_plan_figure   # matplotlib only when drawing
-        files["figure"] = str(save_plan_figure(plan, out / "plan.png", args.figure_format))
+        names["figure"] = f"plan.{args.figure_format}"
+    try:
+        # one set: a failure writing any file (full or read-only disk) leaves none of them
+        out.mkdir(parents=True, exist_ok=True)
+        with atomic_paths(*(out / n for n in names.values())) as tmps:
+            tmp = dict(zip(names, tmps))
+            turbine.export(tmp["turbine"])
+            plan.to_csv(tmp["path"])
+            if not args.no_plot:
+                from ..planner.plot import save_plan_figure   # matplotlib only when drawing
+                save_plan_figure(plan, tmp["figure"], args.figure_format)
+    except OSError as exc:
+        print(f"{prog}: error: cannot write --out {str(out)!r}: {exc.strerror or exc}", file=sys.stderr)
+        return 2
+    files = {k: str(out / n) for k, n in names.items()}
     summary = plan.summary()
     summary["min_clearance_m"] = round(plan.min_clearance(), 4)
     summary["build_time_s"] = round(t_build, 6)
