@@ -57,8 +57,8 @@ def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], pro
     module_name, _ = table[name]
     try:   # the import and the run: a subcommand may import an optional dependency lazily
         module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
         return int(module.main(argv, prog=prog) or 0)
+    except ModuleNotFoundError as exc:
         msg = missing_extra(exc)
         if msg is None:
             raise
