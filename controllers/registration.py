@@ -20,6 +20,11 @@ registry (``wt-inspect evaluate --help``) does not build CasADi functions.
   quaternion yaw reference and their camera axis (:mod:`controllers.authors_baselines`), for the
   ``paper-faithful`` scenario.
 
+The MPC factories of ``vtnmpc*``, ``nmpc`` and ``pampc`` also hand the policy the mission's turbine
+(``env.mission``: the collision mesh of each rotor position), so every one of them keeps the clearance
+d_min (:mod:`controllers.rti_policy`); the ``*-authors`` variants reproduce the authors' runs and
+do not.
+
 The VT-NMPC keeps its 0.01 s shooting interval at any control rate (``control_dt`` is the
 environment's period), as the paper's 200 Hz loop ran a 30 x 0.01 s horizon.
 """
@@ -30,9 +35,17 @@ from typing import Any
 from wt_inspect_env.policy import PolicyEntry
 
 
+def _turbine(env: Any) -> Any:
+    """The turbine the MPCs keep ``d_min`` from: the mission's collision mesh of every rotor
+    position (the geometry the simulator collides the drone with)."""
+    from wt_inspect_env.proximity import TurbineProximity
+    return TurbineProximity.from_mission(env.mission)
+
+
 def _vtnmpc_policy(env: Any, **options: Any) -> Any:
     from .vtnmpc import VTNMPCPolicy
-    return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt, **options)
+    return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt, obstacles=_turbine(env),
+                        **options)
 
 
 def _vtnmpc_plus_policy(env: Any) -> Any:
@@ -42,14 +55,14 @@ def _vtnmpc_plus_policy(env: Any) -> Any:
 
 def _nmpc_policy(env: Any) -> Any:
     from .nmpc import NMPCPolicy
-    return NMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt)
+    return NMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt, obstacles=_turbine(env))
 
 
 def _pampc_policy(env: Any) -> Any:
     from .pampc import PAMPCConfig, PAMPCPolicy
     guard = PAMPCConfig.image_plane_guard * env.config.standoff / 7.0
     return PAMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt,
-                       camera=env.config.camera, image_plane_guard=guard)
+                       camera=env.config.camera, image_plane_guard=guard, obstacles=_turbine(env))
 
 
 vtnmpc = PolicyEntry(_vtnmpc_policy, "the paper's VT-NMPC, paper weights", display_name="VT-NMPC")

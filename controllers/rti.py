@@ -1,6 +1,8 @@
 """A generic real-time-iteration (RTI) NMPC core for nonlinear-least-squares optimal control.
 
-Problem (one instance per control step, parameters ``p`` constant over the horizon)::
+Problem (one instance per control step; parameters ``p`` constant over the horizon, or one column
+``p_k`` per stage k = 0..N when the caller has stage-wise data, e.g. the clearance constraint's
+nearest mesh points along the predicted trajectory)::
 
     min   1/2 sum_k r(x_k, u_k, p)^T W r(x_k, u_k, p) + 1/2 r_N(x_N, p)^T W_N r_N(x_N, p)
     s.t.  x_0 = x_measured
@@ -322,14 +324,29 @@ def _gauss_newton_terminal(ocp: OCP, regularization: float) -> ca.Function:
 
 
 def _horizon_symbols(ocp: OCP) -> dict[str, Any]:
-    """MX inputs (w, p, W, W_N) of a QP-data function and the stage-wise views of w."""
+    """MX inputs (w, P, W, W_N) of a QP-data function and the stage-wise views of w and P.
+
+    ``P`` holds one parameter column per stage (np x (N+1), the terminal stage's last): a caller
+    with constant parameters repeats them (:meth:`RTISolver.prepare` does), which evaluates every
+    stage on the same numbers as before, bit for bit."""
     N, nx, nz = ocp.horizon, ocp.nx, ocp.nx + ocp.nu
     w = ca.MX.sym("w", ocp.n_vars)
     body = ca.reshape(w[:N * nz], nz, N)
     wN = w[N * nz:]
-    return {"w": w, "p": ca.MX.sym("p", ocp.np), "W": ca.MX.sym("W", ocp.ny), "WN": ca.MX.sym("WN", ocp.ny_terminal),
-            "Xs": body[:nx, :], "Us": body[nx:, :], "wN": wN,
+    P = ca.MX.sym("p", ocp.np, N + 1)
+    return {"w": w, "p": P, "Ps": P[:, :N], "pN": P[:, N], "W": ca.MX.sym("W", ocp.ny),
+            "WN": ca.MX.sym("WN", ocp.ny_terminal), "Xs": body[:nx, :], "Us": body[nx:, :], "wN": wN,
             "Xnext": ca.horzcat(body[:nx, 1:], wN) if N > 1 else wN}
+
+
+def stage_parameter_matrix(ocp: OCP, params: Any) -> np.ndarray:
+    """Parameters as an (N+1, np) array, one row per stage: ``(np,)`` is repeated over the
+    horizon, ``(N+1, np)`` taken as given; finite, or a ValueError naming ``params``."""
+    arr = np.asarray(params, dtype=float) if not isinstance(params, np.ndarray) else params
+    if arr.ndim == 1:
+        v = check_array("params", arr, (ocp.np,))
+        return np.broadcast_to(v, (ocp.horizon + 1, ocp.np))
+    return check_array("params", arr, (ocp.horizon + 1, ocp.np))
 
 
 def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function:
@@ -355,9 +372,9 @@ def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function
 
     # -- whole horizon, MX with a mapped stage ---------------------------------------------------
     m = _horizon_symbols(ocp)
-    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["p"], m["W"])
+    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
     Hs, gs, ABs, ndefs, costs = res[:5]
-    HNv, gNv, costN = terminal(m["wN"], m["p"], m["WN"])
+    HNv, gNv, costN = terminal(m["wN"], m["pN"], m["WN"])
 
     H_full = ca.diagcat(*ca.horzsplit(Hs, nz), HNv)
     g_full = ca.vertcat(ca.vec(gs), gNv)
@@ -398,8 +415,8 @@ def build_stage_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Fu
                          -st["neg_defect"], st["cost"]])
     terminal = _gauss_newton_terminal(ocp, regularization)
     m = _horizon_symbols(ocp)
-    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["p"], m["W"])
-    QN, qN, costN = terminal(m["wN"], m["p"], m["WN"])
+    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
+    QN, qN, costN = terminal(m["wN"], m["pN"], m["WN"])
     outs = [ca.horzcat(Q, QN), S, R, ca.horzcat(q, qN), rr, A, B, b, ca.sum2(costs) + costN]
     return ca.Function(f"{ocp.name}_sqpdata", [m["w"], m["p"], m["W"], m["WN"]], [ca.densify(o) for o in outs],
                        ["w", "p", "W", "WN"], ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"])
@@ -480,7 +497,8 @@ class RTISolver:
 
         # ---- preallocated arrays shared with the CasADi buffers (modify in place only) --------
         self._w = np.zeros(ocp.n_vars)
-        self._p = np.zeros(ocp.np)
+        self._p = np.zeros(ocp.np * (N + 1))           # stage-major: row k of (N+1, np) is stage k
+        self._P = self._p.reshape(N + 1, ocp.np)
         self._W = W
         self._WN = WN
         qf = self._qp_fun
@@ -630,13 +648,19 @@ class RTISolver:
 
     # ---- the two phases ------------------------------------------------------------------------
     def check_params(self, params) -> np.ndarray:
-        return check_array("params", params, (self.ocp.np,))
+        """``params`` as the (N+1, np) stage-wise array (see :func:`stage_parameter_matrix`)."""
+        return stage_parameter_matrix(self.ocp, params)
+
+    def _param_arg(self, params) -> np.ndarray:
+        """The QP-data function's parameter input (np x (N+1)) for ``params``."""
+        return np.ascontiguousarray(self.check_params(params).T)
 
     def prepare(self, params) -> None:
-        """Linearise at the current guess for parameters ``params`` (no measurement needed)."""
+        """Linearise at the current guess for parameters ``params`` (no measurement needed):
+        ``(np,)`` for the same parameters at every stage, ``(N+1, np)`` for one row per stage."""
         if not self._initialized:
             raise RuntimeError("solver not initialized: call initialize(x0) first")
-        self._p[:] = self.check_params(params)
+        self._P[:] = self.check_params(params)
         t0 = time.perf_counter()
         if self._direct is not None:
             self._prepare_direct()
@@ -792,14 +816,14 @@ class RTISolver:
     def cost(self, params, w=None) -> float:
         """Objective value at ``w`` (default: the current iterate)."""
         w = self.iterate if w is None else check_array("w", w, (self.ocp.n_vars,))
-        out = self._qp_fun.call([w, self.check_params(params), self._W, self._WN])
+        out = self._qp_fun.call([w, self._param_arg(params), self._W, self._WN])
         return float(out[5])
 
     def qp_matrices(self, params, w=None) -> dict[str, np.ndarray]:
         """Dense QP data at ``w`` (default: the current iterate): H, g, A, lba, uba (for tests
         and inspection; not used on the hot path)."""
         w = self.iterate if w is None else check_array("w", w, (self.ocp.n_vars,))
-        out = self._qp_fun.call([w, self.check_params(params), self._W, self._WN])
+        out = self._qp_fun.call([w, self._param_arg(params), self._W, self._WN])
         names = ("H", "g", "A", "lba", "uba", "cost")
         return {n: np.asarray(ca.DM(v).full()) for n, v in zip(names, out)}
 
@@ -815,20 +839,21 @@ class IpoptOCPSolver:
         N, nx, nu = ocp.horizon, ocp.nx, ocp.nu
         nz = nx + nu
         w = ca.SX.sym("w", ocp.n_vars)
-        p = ca.SX.sym("p", ocp.np)
+        P = ca.SX.sym("p", ocp.np, N + 1)     # one parameter column per stage, as the RTI solver's
         obj = 0
         cons = []
         for k in range(N):
             xk, uk = w[k * nz:k * nz + nx], w[k * nz + nx:(k + 1) * nz]
             xk1 = w[(k + 1) * nz:(k + 1) * nz + nx]
+            p = P[:, k]
             r = ocp.stage_residual(xk, uk, p)
             obj += 0.5 * ca.dot(ca.DM(W) * r, r)
             cons.append(ocp.dynamics(xk, uk, p) - xk1)
             if ocp.nh:
                 cons.append(ocp.path_constraint(xk, uk, p))
-        rN = ocp.terminal_residual(w[N * nz:], p)
+        rN = ocp.terminal_residual(w[N * nz:], P[:, N])
         obj += 0.5 * ca.dot(ca.DM(WN) * rN, rN)
-        nlp = {"x": w, "p": p, "f": obj, "g": ca.vertcat(*cons)}
+        nlp = {"x": w, "p": ca.vec(P), "f": obj, "g": ca.vertcat(*cons)}
         opts = {"print_time": False, "ipopt": {
             "print_level": 0, "sb": "yes", "tol": tol, "max_iter": max_iter,
             "warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
@@ -871,7 +896,7 @@ class IpoptOCPSolver:
         """Converged solution for ``x0`` and ``params``; returns the first input."""
         ocp = self.ocp
         x0 = check_array("x0", x0, (ocp.nx,))
-        p = check_array("params", params, (ocp.np,))
+        p = np.ascontiguousarray(stage_parameter_matrix(ocp, params)).reshape(-1)   # = vec of (np, N+1)
         if self._w is None:
             self.initialize(x0)
         lbx, ubx = self._lbx.copy(), self._ubx.copy()

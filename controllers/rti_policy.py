@@ -28,6 +28,25 @@ over one control period, the attitude of the predicted state. This is what acado
 state constraint dx_0 = x_measured - x_0, while parameters are set before the preparation (so they
 lag by one step, as in acados; estimators fed by the measurement update at the next feedback and
 reach the QP one step later). ``last_stats.latency_ms`` is observation to command either way.
+
+Clearance. Given the turbine (``obstacles``, a :class:`~wt_inspect_env.proximity.TurbineProximity`;
+the registered factories pass the environment's mission geometry), every MPC on this base keeps a
+minimum distance ``d_min`` to the mesh (default 3/7 d_ref: 3 m at the paper's 7 m stand-off). At
+each step the nearest mesh point c_k and the outward direction n_k are found for stages of the
+predicted trajectory (the warm-started plan; stage 0 the measured position) and passed as
+stage-wise parameters of the half-space constraint
+
+    n_k^T (p_k - c_k) - max(0, -n_k^T v_k)^2 / (2 a_brake) + s_k >= d_min,     s_k >= 0,
+
+with cost l1 s_k + l2 s_k^2 / 2 per stage. The braking term makes the constraint see the stopping
+distance at the approach speed: the 0.3 s horizons of the VT-NMPC and the NMPC are shorter than a
+stop from a fast approach, so a position-only constraint would only appear once braking is too late.
+A half-space through the closest point of a convex part of the mesh contains none of that part, so
+p_k in it is at least d_min from that part. The slack s_k (an extra input, bounded below by 0 and
+priced in the least-squares cost; the command is the inputs without it) keeps the QP feasible
+when the measured state is already inside, and the L1 price makes the constraint exact
+whenever it can be met (the multiplier is below ``clearance_l1``). ``clearance=False`` or no
+``obstacles`` builds the OCP without any of it, exactly as before.
 """
 from __future__ import annotations
 
@@ -38,9 +57,12 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from wt_inspect_env.dynamics import NX, quat_to_rotmat_np
+import casadi as ca
+
+from wt_inspect_env.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
 from wt_inspect_env.geometry import HorizontalNormal
 from wt_inspect_env.policy import Policy, check_observation, state_from_observation
+from wt_inspect_env.proximity import TurbineProximity
 from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice, check_field_types, check_positive
@@ -48,6 +70,9 @@ from wt_inspect_env.validation import check_choice, check_field_types, check_pos
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
 BACKENDS = ("rti", "ipopt")
+N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
+DEFAULT_D_MIN_RATIO = 3.0 / 7.0   # d_min / d_ref: 3 m at the paper's 7 m stand-off
+SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -155,7 +180,11 @@ def _default_params() -> QuadrotorParams:
 
 @dataclass(frozen=True)
 class MPCConfig:
-    """What every MPC instance has. ``weights`` may be a weight object of ``WEIGHTS`` or the name
+    """What every MPC instance has (clearance fields: see the module docstring - ``d_min`` [m],
+    None for 3/7 d_ref, below d_ref; ``clearance_brake`` the deceleration [m/s^2] of the braking
+    term; ``clearance_l1`` / ``clearance_l2`` the slack's prices; ``clearance_queries`` how many
+    stages of the predicted trajectory are looked up per step, evenly spread, each stage taking
+    the half-space of the nearest looked-up stage). ``weights`` may be a weight object of ``WEIGHTS`` or the name
     of one of ``WEIGHT_SETS`` (set by each subclass). ``control_dt`` is the period at which
     :meth:`RTIPolicy.act` is called (default ``dt``; the warm start is shifted accordingly, see
     :func:`warm_start_shifts`). ``scaling`` defaults to the environment's action scaling of
@@ -179,6 +208,12 @@ class MPCConfig:
     solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
     backend: str = "rti"
     prepare_ahead: bool = False
+    clearance: bool = True
+    d_min: float | None = None
+    clearance_brake: float = 3.0
+    clearance_l1: float = 1e5
+    clearance_l2: float = 1e3
+    clearance_queries: int = 4
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -206,6 +241,17 @@ class MPCConfig:
         check_choice("backend", self.backend, BACKENDS)
         if not isinstance(self.prepare_ahead, bool):
             raise ValueError(f"prepare_ahead must be a bool, got {self.prepare_ahead!r}")
+        if not isinstance(self.clearance, bool):
+            raise ValueError(f"clearance must be a bool, got {self.clearance!r}")
+        if self.d_min is None:
+            put("d_min", DEFAULT_D_MIN_RATIO * self.d_ref)
+        put("d_min", check_positive("d_min", self.d_min))
+        if self.d_min >= self.d_ref:
+            raise ValueError(f"d_min must be below d_ref ({self.d_ref!r} m), got {self.d_min!r}")
+        put("clearance_brake", check_positive("clearance_brake", self.clearance_brake))
+        put("clearance_l1", check_positive("clearance_l1", self.clearance_l1, allow_zero=True))
+        put("clearance_l2", check_positive("clearance_l2", self.clearance_l2))
+        put("clearance_queries", check_positive_int("clearance_queries", self.clearance_queries))
 
     @property
     def hover_input(self) -> np.ndarray:
@@ -219,6 +265,44 @@ def config_ocp(name: str, config: MPCConfig, dynamics: Any, stage_residual: Any,
     return OCP(name=name, dynamics=dynamics, stage_residual=stage_residual, terminal_residual=terminal_residual,
                horizon=int(config.horizon), dt=config.dt, u_lower=config.scaling.lower,
                u_upper=config.scaling.upper, fallback_input=config.hover_input)
+
+
+def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
+    """``ocp`` with the soft clearance constraint of the module docstring: one slack input
+    appended (bounded to [0, SLACK_UPPER], fallback 0), its residual ``s + l1 / l2`` appended to
+    the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const), and the path constraint
+    on stage parameters appended to the OCP's own [n (3), b]. The first 10 states must be the drone's
+    [p, v_B, q] (augmented states keep them first)."""
+    if ocp.nh:
+        raise ValueError(f"the clearance constraint cannot be added to OCP {ocp.name!r}: it already has "
+                         f"{ocp.nh} path constraints")
+    nx, nu, npar = ocp.nx, ocp.nu, ocp.np
+    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", nu + 1), ca.SX.sym("p", npar + N_CLEARANCE_PARAMS)
+    uc, slack, pc = u[:nu], u[nu], p[:npar]
+    n, b = p[npar:npar + 3], p[npar + 3]
+    name = f"{ocp.name}_clr"
+    dyn = ca.Function(f"{name}_F", [x, u, p], [ocp.dynamics(x, uc, pc)], ["x", "u", "p"], ["x_next"])
+    offset = config.clearance_l1 / config.clearance_l2
+    stage = ca.Function(f"{name}_r", [x, u, p], [ca.vertcat(ocp.stage_residual(x, uc, pc), slack + offset)],
+                        ["x", "u", "p"], ["r"])
+    terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
+    v_n = ca.dot(n, quat_to_rotmat(x[6:10]) @ x[3:6])          # velocity along the outward direction
+    approach = ca.fmax(0.0, -v_n)
+    h = ca.dot(n, x[0:3]) - b - approach ** 2 / (2.0 * config.clearance_brake) + slack
+    path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
+    return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
+               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0), u_upper=np.append(ocp.u_upper, SLACK_UPPER),
+               fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
+               path_constraint=path, h_lower=np.zeros(1), h_upper=np.full(1, np.inf))
+
+
+def _check_obstacles(obstacles: Any) -> TurbineProximity | None:
+    """``obstacles`` as a TurbineProximity: one, a mission (``env.mission``), or None."""
+    if obstacles is None or isinstance(obstacles, TurbineProximity):
+        return obstacles
+    if hasattr(obstacles, "turbines"):
+        return TurbineProximity.from_mission(obstacles)
+    raise ValueError(f"obstacles must be a TurbineProximity, a mission or None, got {type(obstacles).__name__}")
 
 
 def resolve_config(config_cls: type, config: Any, overrides: Mapping[str, Any]) -> Any:
@@ -241,7 +325,8 @@ def resolve_config(config_cls: type, config: Any, overrides: Mapping[str, Any]) 
 class RTIPolicy(Policy):
     """An MPC policy on the RTI core: observation in, normalised (p, q, r, T) action out.
 
-    ``Policy(config=None, **overrides)``; :meth:`reset`, :meth:`act`, :meth:`predict`,
+    ``Policy(config=None, obstacles=None, **overrides)`` (``obstacles``: the turbine to keep
+    ``d_min`` from, see the module docstring); :meth:`reset`, :meth:`act`, :meth:`predict`,
     :meth:`set_weights`; :attr:`last_stats` (:class:`~controllers.rti.SolveStats`) after every
     call; :attr:`last_command` the physical command. See the module docstring for what a subclass
     provides.
@@ -249,10 +334,22 @@ class RTIPolicy(Policy):
 
     config_class: ClassVar[type] = MPCConfig
 
-    def __init__(self, config: MPCConfig | None = None, **overrides: Any) -> None:
+    def __init__(self, config: MPCConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
         config = resolve_config(self.config_class, config, overrides)
         self.config = config
-        self.ocp = self.build_ocp(config)
+        self.obstacles = _check_obstacles(obstacles)
+        self.base_ocp = self.build_ocp(config)
+        self.clearance_active = bool(config.clearance and self.obstacles is not None)
+        self.ocp = clearance_ocp(self.base_ocp, config) if self.clearance_active else self.base_ocp
+        self._nu = self.base_ocp.nu
+        if self.clearance_active:
+            N = config.horizon
+            q = min(config.clearance_queries, N + 1)
+            self._query_stages = np.unique(np.round(np.linspace(0, N, q)).astype(int))
+            # each stage takes the half-space of the nearest looked-up stage
+            self._stage_query = np.abs(np.arange(N + 1)[:, None] - self._query_stages[None, :]).argmin(axis=1)
+            self._stage_params = np.zeros((N + 1, self.base_ocp.np + N_CLEARANCE_PARAMS))
+        self.last_clearance = float("nan")
         self.solver: RTISolver | IpoptOCPSolver = self._make_solver(config.weights)
         self.scaling: ActionScaling = config.scaling
         self.shifts_per_step = warm_start_shifts(config.control_dt, config.dt)
@@ -281,8 +378,14 @@ class RTIPolicy(Policy):
         """Called once per measured state, before its command is computed (estimators)."""
 
     # -- common -----------------------------------------------------------------------------------
-    def _make_solver(self, weights: Any) -> RTISolver | IpoptOCPSolver:
+    def _weight_vectors(self, weights: Any) -> tuple[np.ndarray, np.ndarray]:
         W, WN = weights.stage_vector(), weights.terminal_vector()
+        if self.clearance_active:
+            W = np.append(W, self.config.clearance_l2)
+        return W, WN
+
+    def _make_solver(self, weights: Any) -> RTISolver | IpoptOCPSolver:
+        W, WN = self._weight_vectors(weights)
         if self.config.backend == "ipopt":
             return IpoptOCPSolver(self.ocp, W, WN)
         return RTISolver(self.ocp, W, WN, self.config.solver)
@@ -292,6 +395,9 @@ class RTIPolicy(Policy):
         deterministic; ``seed`` is accepted for the common interface)."""
         self.solver.reset()
         self.normal.reset()
+        if self.obstacles is not None:
+            self.obstacles.reset()
+        self.last_clearance = float("nan")
         self._last_q = None
         self._ahead = False
         self.last_stats = SolveStats()
@@ -309,7 +415,7 @@ class RTIPolicy(Policy):
         if isinstance(self.solver, IpoptOCPSolver):
             self.solver = self._make_solver(w)
         else:
-            self.solver.set_weights(w.stage_vector(), w.terminal_vector())
+            self.solver.set_weights(*self._weight_vectors(w))
         self._ahead = False   # the prepared QP has the old weights
 
     def _align(self, state: np.ndarray) -> np.ndarray:
@@ -329,19 +435,41 @@ class RTIPolicy(Policy):
         if isinstance(solver, RTISolver):
             if not solver.initialized:
                 solver.initialize(xm)
-            solver.prepare(params)
+            solver.prepare(self._with_clearance(params, xm))
             u = solver.feedback(xm)
         else:
-            u = solver.solve(xm, params)
+            u = solver.solve(xm, self._with_clearance(params, xm))
         self._ahead = False
-        self._finish_step(u)
-        return u
+        return self._finish_step(u)
 
-    def _finish_step(self, u: np.ndarray) -> None:
+    def _finish_step(self, u: np.ndarray) -> np.ndarray:
         for _ in range(self.shifts_per_step):
             self.solver.shift()
         self.last_stats = self.solver.last_stats
-        self.last_command = u
+        self.last_command = u[:self._nu] if self.clearance_active else u
+        return self.last_command
+
+    def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """The solver's parameters: ``params``, or with the clearance on the (N+1, np + 4)
+        stage-wise array of ``params`` and each stage's half-space [n, n^T c + d_min] from the
+        nearest mesh points of the plan's positions (stage 0: ``x0``'s)."""
+        if not self.clearance_active:
+            return params
+        P = self._stage_params
+        npar = self.base_ocp.np
+        P[:, :npar] = params
+        try:
+            xs = self.ocp.unpack(self.solver.iterate)[0]
+            pos = xs[self._query_stages, 0:3]
+            pos[self._query_stages == 0] = x0[0:3]
+        except RuntimeError:          # no plan yet (IPOPT before its first solve)
+            pos = np.tile(x0[0:3], (len(self._query_stages), 1))
+        c, d, n = self.obstacles.closest(pos)
+        self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+        k = self._stage_query
+        P[:, npar:npar + 3] = n[k]
+        P[:, npar + 3] = np.einsum("ij,ij->i", n, c)[k] + self.config.d_min
+        return P
 
     @property
     def predicted_state(self) -> np.ndarray | None:
@@ -363,11 +491,13 @@ class RTIPolicy(Policy):
         o = check_observation(obs)
         x = self._align(state_from_observation(o))
         self.on_measurement(x)
+        if self.obstacles is not None:
+            self.obstacles.update(o["point"])
         if self._ahead:                      # only the feedback QP stands between obs and command
             u = self.solver.feedback(self.model_state(x))
             self._ahead = False
             latency = (time.perf_counter() - t0) * 1e3
-            self._finish_step(u)
+            u = self._finish_step(u)
         else:
             nxy = self.normal.update(o["normal"], x[0:3], o["point"])
             u = self._solve(x, self.parameters(o, x, nxy))
@@ -386,7 +516,8 @@ class RTIPolicy(Policy):
         nxt = {**obs, "point": obs["point"] + obs["point_velocity"] * self.config.control_dt,
                "position": predicted[0:3], "velocity_body": predicted[3:6], "quaternion": predicted[6:10]}
         nxy = self.normal.update(nxt["normal"], predicted[0:3], nxt["point"])
-        self.solver.prepare(self.parameters(nxt, predicted, nxy))
+        self.solver.prepare(self._with_clearance(self.parameters(nxt, predicted, nxy),
+                                                 self.model_state(predicted)))
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:

@@ -99,8 +99,9 @@ class PolicyEntry:
     """A named policy as a package registers it (the value of one entry point).
 
     ``factory(env)`` builds the policy from the *unwrapped* environment (its ``params``,
-    ``config.standoff``, ``dt``, ``config.camera``), so the policy's model always matches the
-    simulated drone. An entry with ``takes_argument`` is addressed as ``NAME:ARG`` (e.g.
+    ``config.standoff``, ``dt``, ``config.camera``, and ``mission`` - the planned path and the
+    turbine of each rotor position, which the MPCs keep their clearance from), so the policy's
+    model always matches the simulated drone and world. An entry with ``takes_argument`` is addressed as ``NAME:ARG`` (e.g.
     ``ppo:models/agent.zip``) and its factory is ``factory(env, arg)``; ``check(arg)`` raises a
     one-line ValueError for a bad argument before any run starts, and ``fingerprint(arg)`` names
     what makes the argument's behaviour unique (a model file's content hash), so a changed model

@@ -26,7 +26,13 @@ the feedback its tangential predictor: the full QP only when the active set chan
 (the VT-NMPC OCP solved to convergence every step, warm-started), ``vtnmpc_plus`` (VT-NMPC+, the
 observer inside the timed step), ``nmpc`` and ``pampc`` (the paper's baselines, compiled RTI with
 their own stage lengths), so the paper's ordering of cost per step (NMPC < VT-NMPC < PAMPC) is
-measured, not assumed. The compile time of the QP-data library is measured separately, into a
+measured, not assumed. The names resolved through the registry (``rti_compiled``, ``vtnmpc_plus``,
+``nmpc``, ``pampc``) are the policies as the evaluation flies them, with the clearance constraint
+(nearest mesh points looked up every step, one soft half-space per stage;
+:mod:`controllers.rti_policy`); ``rti_no_clearance``, ``vtnmpc_plus_no_clearance`` and
+``nmpc_no_clearance`` are the same without it, so its cost per step is the difference in one run.
+The ``rti_*`` solver variants built here (``rti_ahead``, ``rti_hpipm``, ...) compare QP paths on
+the VT-NMPC OCP without the constraint (the direct HPIPM path has no path constraints). The compile time of the QP-data library is measured separately, into a
 fresh temporary cache so that it is a real compile.
 """
 from __future__ import annotations
@@ -66,13 +72,28 @@ def _direct_hpipm(**options: Any) -> Any:
     return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0, **options)
 
 
+def _without_clearance(kind: str) -> Callable[[Any], Any]:
+    """A registered MPC built as its registry factory builds it, with ``clearance=False``."""
+    def build(env: Any) -> Any:
+        common = dict(params=env.params, d_ref=env.config.standoff, control_dt=env.dt, clearance=False)
+        if kind == "nmpc":
+            from controllers.nmpc import NMPCPolicy
+            return NMPCPolicy(**common)
+        from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy
+        return VTNMPCPolicy(**common, **(VTNMPC_PLUS if kind == "vtnmpc_plus" else {}))
+    return build
+
+
 def _uncompiled(env: Any) -> Any:
     from controllers.rti import RTIOptions
     return _vtnmpc_variant(solver=RTIOptions(qp_mode="speed_abs", compiled=False))(env)
 
 
 SOLVERS: dict[str, tuple[str, Callable[[], Callable[[Any], Any]]]] = {
-    "rti_compiled": ("VT-NMPC, compiled RTI", lambda: registry.resolve("vtnmpc")),
+    "rti_compiled": ("VT-NMPC, compiled RTI, with the clearance constraint (as registered)",
+                     lambda: registry.resolve("vtnmpc")),
+    "rti_no_clearance": ("VT-NMPC, compiled RTI, without the clearance constraint",
+                         lambda: _without_clearance("vtnmpc")),
     "rti_ahead": ("VT-NMPC, compiled RTI, next step prepared after the command",
                   lambda: _vtnmpc_variant(prepare_ahead=True)),
     "rti_hpipm": ("VT-NMPC, compiled RTI, HPIPM called directly",
@@ -83,9 +104,13 @@ SOLVERS: dict[str, tuple[str, Callable[[], Callable[[Any], Any]]]] = {
                     lambda: _vtnmpc_variant(solver=_direct_hpipm(tangential_predictor=True), prepare_ahead=True)),
     "rti_uncompiled": ("VT-NMPC, uncompiled QP data", lambda: _uncompiled),
     "ipopt": ("VT-NMPC OCP, IPOPT to convergence", lambda: _vtnmpc_variant(backend="ipopt")),
-    "vtnmpc_plus": ("VT-NMPC+, compiled RTI", lambda: registry.resolve("vtnmpc-plus")),
-    "nmpc": ("NMPC baseline, compiled RTI", lambda: registry.resolve("nmpc")),
-    "pampc": ("PAMPC baseline, compiled RTI", lambda: registry.resolve("pampc")),
+    "vtnmpc_plus": ("VT-NMPC+, compiled RTI, clearance", lambda: registry.resolve("vtnmpc-plus")),
+    "vtnmpc_plus_no_clearance": ("VT-NMPC+, compiled RTI, without the clearance constraint",
+                                 lambda: _without_clearance("vtnmpc_plus")),
+    "nmpc": ("NMPC baseline, compiled RTI, clearance", lambda: registry.resolve("nmpc")),
+    "nmpc_no_clearance": ("NMPC baseline, compiled RTI, without the clearance constraint",
+                          lambda: _without_clearance("nmpc")),
+    "pampc": ("PAMPC baseline, compiled RTI, clearance", lambda: registry.resolve("pampc")),
 }
 
 
@@ -173,7 +198,8 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
-    parser.add_argument("--solvers", default="rti_compiled,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,rti_uncompiled,ipopt,vtnmpc_plus,nmpc,pampc",
+    parser.add_argument("--solvers", default="rti_compiled,rti_no_clearance,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,"
+                        "rti_uncompiled,ipopt,vtnmpc_plus,vtnmpc_plus_no_clearance,nmpc,nmpc_no_clearance,pampc",
                         help="comma-separated subset of " + ", ".join(SOLVERS))
     args = parser.parse_args(argv)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
@@ -188,10 +214,10 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     ref = results["reference"]["median_ms"]
     print(f"closed loop on the {SCENARIO} task, {WIND:g} m/s gust, {args.steps} steps after {args.warmup} "
           f"warm-up; medians per control step [ms]; reference {ref:.4f} ms ({results['reference']['what']})")
-    print(f"{'solver':<16}{'latency':>9}{'p99':>8}{'step':>9}{'p99':>8}{'lat/ref':>9}{'step/ref':>9}  what")
+    print(f"{'solver':<26}{'latency':>9}{'p99':>8}{'step':>9}{'p99':>8}{'lat/ref':>9}{'step/ref':>9}  what")
     for name in solvers:
         r = results[name]
-        print(f"{name:<16}{r['latency']['median_ms']:9.3f}{r['latency']['p99_ms']:8.3f}"
+        print(f"{name:<26}{r['latency']['median_ms']:9.3f}{r['latency']['p99_ms']:8.3f}"
               f"{r['step']['median_ms']:9.3f}{r['step']['p99_ms']:8.3f}"
               f"{r['latency_ratio_vs_reference']:9.1f}{r['step_ratio_vs_reference']:9.1f}  {r['description']}")
     print("latency = observation to command (the policy's own measurement); step = the whole act() call")
