@@ -79,6 +79,54 @@ def test_images_carry_the_span_markings(rgbd_env):
     assert (diff[blade] > 60).mean() > 0.3
 
 
+def test_frustum_culling_draws_the_same_image_as_the_whole_turbine():
+    """Only the drawn chunks in the camera's frustum are handed to the renderer; the image must be
+    exactly the one of the whole turbine (culling is conservative), along a flight past the blade
+    and across the rotor turn of the full mission."""
+    import pybullet as p
+
+    from wt_inspect_env.render import _render, camera_images, metric_depth
+
+    env = gym.make("WindTurbineInspection-v0", obs_mode="rgbd", camera_resolution=(40, 30), wind="none",
+                   start_offset=(0.0, 0.0, 0.0)).unwrapped
+    try:
+        env.reset(seed=0)
+        hover = env.scaling.hover_action()
+        a = hover.copy()
+        a[2] = 0.4                                    # yaw round: the view sweeps over the turbine
+        checked = 0
+        for k in range(60):
+            env.step(a if k % 2 else hover)
+            if k % 6:
+                continue
+            rgb, depth = camera_images(env.sim, env.camera, env.sim.state, (40, 30), env.config.depth_far)
+            shown = env.sim._chunks[env.sim.obstacle_id]["shown"]
+            assert 0 < shown.sum() < len(shown)
+            env.sim.show_obstacle_chunks(True)
+            origin, R = env.camera.pose(env.sim.state[0:3], env.sim.state[6:10])
+            rgba, buf = _render(env.sim.client, origin, origin + R[:, 2], -R[:, 1], env.camera.config.fov_deg[1],
+                                env.config.depth_far, 40, 30, flags=p.ER_NO_SEGMENTATION_MASK)
+            np.testing.assert_array_equal(rgb, rgba[:, :, :3])
+            np.testing.assert_array_equal(depth, metric_depth(buf, env.config.depth_far))
+            checked += 1
+        assert checked == 10
+        # the phase-2 (turned) turbine is drawn, the parked phase-1 one is not
+        env._set_phase(1)
+        hidden = env.sim._chunks[[b for b in env.sim._chunks if b != env.sim.obstacle_id][0]]["shown"]
+        assert not hidden.any()
+        assert env.sim.obstacle_chunks is not None
+    finally:
+        env.close()
+
+
+def test_state_mode_builds_no_drawn_chunks():
+    env = gym.make(SURFACE).unwrapped
+    try:
+        assert env.sim.obstacle_texture is None and env.sim.obstacle_chunks is None
+    finally:
+        env.close()
+
+
 def test_span_texture_bands_follow_the_distance_from_the_rotor_centre():
     tex = SpanTexture(center=(0.0, 0.0, 100.0), radius=12.0, band_m=1.0, major_every=5)
     img = tex.image()

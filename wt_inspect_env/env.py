@@ -116,8 +116,7 @@ class WindTurbineInspectionEnv(gym.Env):
         self.wind = make_wind(cfg.wind)
         self.sim = QuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz),
                                 wind=self.wind, obstacles=self.mission.turbines[0].mesh,
-                                obstacle_texture=SpanTexture.for_meshes(
-                                    self.mission.turbines[0].rotor_center, [t.mesh for t in self.mission.turbines]))
+                                obstacle_texture=self._texture(render_mode))
         if render_mode == "human":
             self.sim.enable_gui()  # pragma: no cover - needs a display
         self.camera = GimbalCamera(cfg.camera)
@@ -259,7 +258,7 @@ class WindTurbineInspectionEnv(gym.Env):
         """The gimbal camera's images for the image observation modes (see :mod:`.render`)."""
         from .render import camera_images
         cfg = self.config
-        rgb, depth = camera_images(self.sim.client, self.camera, self.sim.state, cfg.camera_resolution,
+        rgb, depth = camera_images(self.sim, self.camera, self.sim.state, cfg.camera_resolution,
                                    far=cfg.depth_far, rgb="rgb" in IMAGE_KEYS[cfg.obs_mode],
                                    depth="depth" in IMAGE_KEYS[cfg.obs_mode])
         out = {}
@@ -301,6 +300,13 @@ class WindTurbineInspectionEnv(gym.Env):
         }
 
     # ------------------------------------------------------------------ internals
+    def _texture(self, render_mode: str | None) -> SpanTexture | None:
+        """The turbine's span markings, where images are made (image observations, rgb_array or
+        human rendering); otherwise none, which saves building the drawn chunks."""
+        if self.config.obs_mode == "state" and render_mode is None:
+            return None
+        return SpanTexture.for_meshes(self.mission.turbines[0].rotor_center, [t.mesh for t in self.mission.turbines])
+
     def _set_phase(self, index: int) -> None:
         """Use turbine geometry of phase ``index`` for collisions and coverage (rotor turned)."""
         index = min(index, len(self.mission.turbines) - 1)

@@ -10,6 +10,7 @@ geometrically, not from these images.
 """
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -47,16 +48,36 @@ def metric_depth(buffer: np.ndarray, far: float, near: float = NEAR) -> np.ndarr
     return (far * near / (far - (far - near) * b)).astype(np.float32)
 
 
-def camera_images(client: int, camera, state: np.ndarray, resolution: tuple[int, int], far: float,
+def in_frustum(centers: np.ndarray, radii: np.ndarray, origin: np.ndarray, R: np.ndarray, tan_x: float,
+               tan_y: float, far: float) -> np.ndarray:
+    """Which spheres (centres (K, 3), radii (K,)) may reach into a camera's view frustum (origin,
+    ``R`` with the camera's x right, y down, z forward as columns, half-angle tangents, far plane);
+    conservative: a sphere is dropped only when it lies wholly outside one of the planes."""
+    c = (np.asarray(centers) - origin) @ R          # camera coordinates
+    x, y, z = c[:, 0], c[:, 1], c[:, 2]
+    r = np.asarray(radii)
+    side_x = (np.abs(x) - tan_x * z) / np.hypot(1.0, tan_x)   # signed distance outside a side plane
+    side_y = (np.abs(y) - tan_y * z) / np.hypot(1.0, tan_y)
+    return (z > NEAR - r) & (z < far + r) & (side_x < r) & (side_y < r)
+
+
+def camera_images(sim, camera, state: np.ndarray, resolution: tuple[int, int], far: float,
                   rgb: bool = True, depth: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The gimbal camera's view from the drone state ``state`` [p, v_body, q]: ``rgb`` (h, w, 3)
     uint8 and ``depth`` (h, w) float32 [m, along the optical axis] (``None`` where not asked for).
-    ``camera``: the env's :class:`~wt_inspect_env.camera.GimbalCamera`."""
+    ``sim``: the :class:`~wt_inspect_env.sim.QuadrotorSim` (only the obstacle chunks in the
+    frustum are drawn - the same image, a fraction of the triangles); ``camera``: the env's
+    :class:`~wt_inspect_env.camera.GimbalCamera`."""
     origin, R = camera.pose(state[0:3], state[6:10])
     fwd, down = R[:, 2], R[:, 1]
     w, h = resolution
+    fov_y = camera.config.fov_deg[1]
+    chunks = sim.obstacle_chunks
+    if chunks is not None:
+        tan_y = math.tan(math.radians(fov_y) / 2.0)
+        sim.show_obstacle_chunks(in_frustum(chunks[0], chunks[1], origin, R, tan_y * w / h, tan_y, far))
     # No segmentation mask: it is not used and costs a pass.
-    rgba, buf = _render(client, origin, origin + fwd, -down, camera.config.fov_deg[1], far, w, h,
+    rgba, buf = _render(sim.client, origin, origin + fwd, -down, fov_y, far, w, h,
                         flags=p.ER_NO_SEGMENTATION_MASK)
     return (np.ascontiguousarray(rgba[:, :, :3]) if rgb else None,
             metric_depth(buf, far) if depth else None)
@@ -64,6 +85,7 @@ def camera_images(client: int, camera, state: np.ndarray, resolution: tuple[int,
 
 def render_views(env: "WindTurbineInspectionEnv") -> np.ndarray:
     """(240, 640, 3) uint8: onboard camera (left) and chase view (right)."""
+    env.sim.show_obstacle_chunks(True)     # the chase view sees the whole turbine
     state = env.sim.state
     origin, R = env.camera.pose(state[0:3], state[6:10])
     fwd, down = R[:, 2], R[:, 1]

@@ -187,6 +187,7 @@ DRONE_COLLISION_GROUP = 4
 RAY_MASK_WITHOUT_DRONE = 0xFFFF & ~DRONE_COLLISION_GROUP   # rays that do not see the drone itself
 _PARKED = (0.0, 0.0, -1.0e5)      # where unused obstacle bodies wait (far below the ground)
 _MAX_CACHED_OBSTACLES = 4
+_CHUNK_M = 6.0                    # grid cell [m] of the textured obstacle's drawn chunks
 
 
 class QuadrotorSim:
@@ -231,6 +232,7 @@ class QuadrotorSim:
         self.obstacle_texture = obstacle_texture
         self._texture_id = -1
         self._obstacle_key: Any = obstacles
+        self._chunks: dict[int, dict[str, Any]] = {}
         self._obstacle_arrays: tuple[list, list] | None = (
             None if obstacles is None else _mesh_arrays(obstacles))
         self._last_wind = np.zeros(3)
@@ -247,6 +249,7 @@ class QuadrotorSim:
         params, config = self.params, self.config
         cid = self._client = new_client(mode, self.physics_dt)
         self._texture_id = -1
+        self._chunks = {}
         try:
             self._body = create_drone_body(cid, params)
             # Own collision group: still collides with everything, but ray tests (camera
@@ -341,6 +344,7 @@ class QuadrotorSim:
         cid = self._client
         if self._obstacle >= 0:
             p.resetBasePositionAndOrientation(self._obstacle, _PARKED, (0, 0, 0, 1), physicsClientId=cid)
+            self._show_chunks(self._chunks.get(self._obstacle), False)
             self._obstacle = self._obstacle_shape = -1
         self._obstacle_key = mesh
         if mesh is None:
@@ -351,6 +355,7 @@ class QuadrotorSim:
             self._obstacle, self._obstacle_shape = cached[0], cached[1]
             self._obstacle_arrays = cached[3]
             p.resetBasePositionAndOrientation(self._obstacle, (0, 0, 0), (0, 0, 0, 1), physicsClientId=cid)
+            self._show_chunks(self._chunks.get(self._obstacle), True)
             return
         self._obstacle_arrays = _mesh_arrays(mesh)
         self._create_obstacle(*self._obstacle_arrays, key=mesh)
@@ -361,29 +366,76 @@ class QuadrotorSim:
                                        flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
         if shape < 0:  # pragma: no cover
             raise ValueError("PyBullet rejected the obstacle mesh")
-        # A visual shape of the same triangles, so rgb_array renders show the turbine.
-        tex = self.obstacle_texture
-        if tex is None:
+        self._obstacle_shape = shape
+        if self.obstacle_texture is None:
+            # A visual shape of the same triangles, so rgb_array renders show the turbine.
             visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx,
                                          rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
+            self._obstacle = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
         else:
-            from .texture import load_texture, vertex_normals
-            v = np.asarray(verts)
-            visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx, uvs=tex.uvs(v).tolist(),
-                                         normals=vertex_normals(v, np.asarray(idx)).tolist(), physicsClientId=cid)
-        self._obstacle_shape = shape
-        self._obstacle = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
-        if tex is not None:
-            if self._texture_id < 0:
-                self._texture_id = load_texture(cid, tex.image())
-            p.changeVisualShape(self._obstacle, -1, textureUniqueId=self._texture_id, rgbaColor=(1, 1, 1, 1),
-                                physicsClientId=cid)
+            # Drawn as textured visual-only chunks instead (the collision body itself invisible), so
+            # a camera view can skip the chunks outside its frustum (see show_obstacle_chunks).
+            self._obstacle = p.createMultiBody(0.0, shape, physicsClientId=cid)
+            p.changeVisualShape(self._obstacle, -1, rgbaColor=(1, 1, 1, 0), physicsClientId=cid)
+            self._chunks[self._obstacle] = self._create_chunks(np.asarray(verts), np.asarray(idx).reshape(-1, 3))
         if key is not None:
             if len(self._obstacle_cache) >= _MAX_CACHED_OBSTACLES:
                 old_key = next(iter(self._obstacle_cache))
                 old = self._obstacle_cache.pop(old_key)
                 p.removeBody(old[0], physicsClientId=cid)
+                for body in self._chunks.pop(old[0], {"bodies": []})["bodies"]:
+                    p.removeBody(body, physicsClientId=cid)
             self._obstacle_cache[id(key)] = (self._obstacle, shape, key, (verts, idx))
+
+    def _create_chunks(self, v: np.ndarray, f: np.ndarray) -> dict[str, Any]:
+        """Visual-only bodies drawing the obstacle mesh textured, one per ``_CHUNK_M`` grid cell of
+        the triangle centroids (vertex normals from the whole mesh, so shading has no seams)."""
+        from .texture import load_texture, vertex_normals
+        cid, tex = self._client, self.obstacle_texture
+        if self._texture_id < 0:
+            self._texture_id = load_texture(cid, tex.image())
+        normals, uvs = vertex_normals(v, f), tex.uvs(v)
+        cell = np.floor(v[f].mean(axis=1) / _CHUNK_M).astype(np.int64)
+        _, group = np.unique(cell, axis=0, return_inverse=True)
+        bodies, centers, radii = [], [], []
+        for g in range(int(group.max()) + 1):
+            tri = f[group.ravel() == g]
+            used, local = np.unique(tri.ravel(), return_inverse=True)
+            visual = p.createVisualShape(p.GEOM_MESH, vertices=v[used].tolist(), indices=local.tolist(),
+                                         uvs=uvs[used].tolist(), normals=normals[used].tolist(), physicsClientId=cid)
+            body = p.createMultiBody(0.0, -1, baseVisualShapeIndex=visual, physicsClientId=cid)
+            p.changeVisualShape(body, -1, textureUniqueId=self._texture_id, rgbaColor=(1, 1, 1, 1),
+                                physicsClientId=cid)
+            lo, hi = v[used].min(axis=0), v[used].max(axis=0)
+            bodies.append(body)
+            centers.append(0.5 * (lo + hi))
+            radii.append(0.5 * float(np.linalg.norm(hi - lo)))
+        return {"bodies": bodies, "centers": np.array(centers), "radii": np.array(radii),
+                "shown": np.ones(len(bodies), dtype=bool)}
+
+    def _show_chunks(self, chunks: dict[str, Any] | None, mask: Any) -> None:
+        """Show the chunks where ``mask`` (a bool or (K,) bools) is true, hide the others; only the
+        chunks whose state changes are touched."""
+        if chunks is None:
+            return
+        want = np.broadcast_to(np.asarray(mask, dtype=bool), chunks["shown"].shape)
+        for k in np.flatnonzero(want != chunks["shown"]).tolist():
+            p.changeVisualShape(chunks["bodies"][k], -1, rgbaColor=(1, 1, 1, 1.0 if want[k] else 0.0),
+                                physicsClientId=self._client)
+        chunks["shown"] = want.copy()
+
+    @property
+    def obstacle_chunks(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centres (K, 3), radii (K,)) of the bounding spheres of the active obstacle's drawn
+        chunks (only with an ``obstacle_texture``; else ``None``)."""
+        chunks = self._chunks.get(self._obstacle)
+        return None if chunks is None else (chunks["centers"], chunks["radii"])
+
+    def show_obstacle_chunks(self, mask: Any = True) -> None:
+        """Draw only the active obstacle's chunks where ``mask`` is true (e.g. those a camera's
+        frustum can see: TinyRenderer's cost grows with every triangle it is given, drawn or
+        not); ``True`` draws them all. Drawing only: collisions and rays are unaffected."""
+        self._show_chunks(self._chunks.get(self._obstacle), mask)
 
     @property
     def obstacle_id(self) -> int:
