@@ -1,0 +1,66 @@
+"""The docs site's pages stay in step with the code they describe (the site itself is built with
+``mkdocs build --strict`` in .ci/run; these checks need no MkDocs)."""
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+
+def _nav_pages() -> list[str]:
+    return re.findall(r":\s*([\w/]+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(), flags=re.M)
+
+
+def test_every_page_is_in_the_nav_and_exists():
+    nav = _nav_pages()
+    assert nav and all((DOCS / p).is_file() for p in nav), [p for p in nav if not (DOCS / p).is_file()]
+    pages = sorted(str(p.relative_to(DOCS)) for p in DOCS.rglob("*.md"))
+    assert sorted(nav) == pages
+
+
+def test_api_reference_targets_exist():
+    targets = [t for p in (DOCS / "api").glob("*.md") for t in re.findall(r"^::: ([\w.]+)", p.read_text(), re.M)]
+    assert len(targets) >= 20
+    for target in targets:
+        parts = target.split(".")
+        for i in range(len(parts), 0, -1):   # the longest importable prefix, then attributes
+            try:
+                obj = importlib.import_module(".".join(parts[:i]))
+            except ModuleNotFoundError:
+                continue
+            for attr in parts[i:]:
+                obj = getattr(obj, attr)
+            break
+        else:
+            raise AssertionError(f"{target} does not exist")
+
+
+def test_scenarios_page_names_every_scenario():
+    from wt_inspect.evaluation.scenarios import SCENARIOS
+    text = (DOCS / "scenarios.md").read_text()
+    missing = [name for name in SCENARIOS if f"`{name}`" not in text]
+    assert missing == []
+
+
+def test_metrics_page_defines_every_reported_metric():
+    from wt_inspect_env.metrics import InspectionMetrics
+    text = (DOCS / "metrics.md").read_text()
+    names = [f.name for f in dataclasses.fields(InspectionMetrics)
+             if f.name not in {"n_samples", "n_inspecting", "n_triangles", "n_seen", "safety_margin_m", "coverage",
+                               "safety_sm", "centering_cm", "centering_body_cm"}]
+    assert [n for n in names if f"`{n}`" not in text] == []
+    for heading in ("## Coverage", "## Safety metric SM", "## Centering metric CM"):
+        assert heading in text
+
+
+def test_cli_page_lists_every_config_key_and_the_reward_terms_are_documented():
+    from wt_inspect.evaluation.config import KINDS
+    from wt_inspect_env.step_terms import REWARD_TERMS
+    cli = (DOCS / "cli.md").read_text()
+    assert [k for k in KINDS if f"`{k}`" not in cli] == []
+    env = (DOCS / "environment.md").read_text()
+    assert [t for t in REWARD_TERMS if f"| `{t}` |" not in env] == []
