@@ -38,6 +38,7 @@ import numpy as np
 import pybullet as p
 
 from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
+from .pybullet_refs import call_releasing
 from .rate_control import Mixer, RateController, RateGains
 from .validation import check_array, check_field_types, check_positive
 from .wind import WindField, make_wind
@@ -362,15 +363,15 @@ class QuadrotorSim:
 
     def _create_obstacle(self, verts: list, idx: list, key: Any = None) -> None:
         cid = self._client
-        shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
-                                       flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
+        shape = call_releasing(p.createCollisionShape, p.GEOM_MESH, vertices=verts, indices=idx,
+                               flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
         if shape < 0:  # pragma: no cover
             raise ValueError("PyBullet rejected the obstacle mesh")
         self._obstacle_shape = shape
         if self.obstacle_texture is None:
             # A visual shape of the same triangles, so rgb_array renders show the turbine.
-            visual = p.createVisualShape(p.GEOM_MESH, vertices=verts, indices=idx,
-                                         rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
+            visual = call_releasing(p.createVisualShape, p.GEOM_MESH, vertices=verts, indices=idx,
+                                    rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
             self._obstacle = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
         else:
             # Drawn as textured visual-only chunks instead (the collision body itself invisible), so
@@ -401,8 +402,8 @@ class QuadrotorSim:
         for g in range(int(group.max()) + 1):
             tri = f[group.ravel() == g]
             used, local = np.unique(tri.ravel(), return_inverse=True)
-            visual = p.createVisualShape(p.GEOM_MESH, vertices=v[used].tolist(), indices=local.tolist(),
-                                         uvs=uvs[used].tolist(), normals=normals[used].tolist(), physicsClientId=cid)
+            visual = call_releasing(p.createVisualShape, p.GEOM_MESH, vertices=v[used].tolist(), indices=local.tolist(),
+                                    uvs=uvs[used].tolist(), normals=normals[used].tolist(), physicsClientId=cid)
             body = p.createMultiBody(0.0, -1, baseVisualShapeIndex=visual, physicsClientId=cid)
             p.changeVisualShape(body, -1, textureUniqueId=self._texture_id, rgbaColor=(1, 1, 1, 1),
                                 physicsClientId=cid)

@@ -36,6 +36,7 @@ import numpy as np
 import pybullet as p
 
 from ..quadrotor import QuadrotorParams
+from ..pybullet_refs import call_releasing
 from ..rate_control import Mixer, RateController, RateGains
 from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_state,
                    create_drone_body, new_client, place_body)
@@ -137,8 +138,8 @@ class BatchedQuadrotorSim:
             self.geometry_ids: list[int] = []
             for g, mesh in enumerate(geometries):
                 verts, idx = _mesh_arrays(mesh)
-                shape = p.createCollisionShape(p.GEOM_MESH, vertices=verts, indices=idx,
-                                               flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
+                shape = call_releasing(p.createCollisionShape, p.GEOM_MESH, vertices=verts, indices=idx,
+                                       flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
                 body = p.createMultiBody(0.0, shape, physicsClientId=cid)
                 p.setCollisionFilterGroupMask(body, -1, geometry_group(g), 0xFFFF, physicsClientId=cid)
                 self.geometry_ids.append(body)
