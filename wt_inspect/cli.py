@@ -33,6 +33,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
     "train": ("agents.bench", "training throughput: vector env vs subprocess envs"),
+    "leak": ("wt_inspect_env.commands.bench_leak", "memory over repeated gym.make/reset/close cycles (RSS slope)"),
 }
 
 
