@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, save_figure
+
 
 def _smooth(y: np.ndarray, window: int) -> np.ndarray:
     if len(y) < 2 or window <= 1:
@@ -20,10 +22,12 @@ def _smooth(y: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0.9) -> Path:
+def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0.9,
+                        fmt: str = DEFAULT_FIGURE_FORMAT) -> Path:
     """Two panels against simulator steps: periodic evaluation (coverage, SM, CM of the
     deterministic policy on the evaluation mission) and training episodes (return, SM; smoothed
-    over 20 episodes). Returns the written path."""
+    over 20 episodes). ``fmt``: png, pdf or svg (``path``'s suffix is replaced by it). Returns the
+    written path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -70,7 +74,7 @@ def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0
                 f"{s['wall_time_s'] / 60:.1f} min"
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, fmt)
+    finally:
+        plt.close(fig)

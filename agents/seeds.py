@@ -56,7 +56,9 @@ def _one_seed(kwargs: Mapping[str, Any], seed: int, run: str, progress: bool) ->
 
 def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, address: str | None = None,
                 **train_kwargs: Any) -> dict[str, Any]:
-    """Train every seed (see the module docstring); returns the ``seeds.json`` document."""
+    """Train every seed (see the module docstring); returns the ``seeds.json`` document.
+    ``figure_format`` (in ``train_kwargs``, as for :func:`agents.training.train`) applies to the
+    seeds' learning curves and the figure over the seeds."""
     from tqdm import tqdm
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -80,7 +82,7 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     doc = seed_report(out, seeds)
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
-        plot_seed_curves(out, seeds, out / "learning_curves_seeds.png")
+        plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"))
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc
@@ -127,8 +129,9 @@ def seed_report(out: Path, seeds: Sequence[int], target: Mapping[str, float] = T
     return {"target": dict(target), "seeds": rows, "n_reached": sum(r["reached_target"] for r in rows)}
 
 
-def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path) -> Path:
-    """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std."""
+def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png") -> Path:
+    """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std, as
+    ``fmt`` (png, pdf, svg; ``path``'s suffix is replaced by it). Returns the written path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -158,6 +161,8 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path) -> Path:
     axes[1].set(xlabel="env steps", ylabel="CM", title="centering")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    from wt_inspect_env.figure_io import save_figure
+    try:
+        return save_figure(fig, path, fmt)
+    finally:
+        plt.close(fig)

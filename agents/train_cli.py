@@ -7,6 +7,7 @@ import sys
 
 from wt_inspect_env.atomic_io import check_out_dir
 from wt_inspect_env.env_config import TASKS
+from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 
 from .policy import ALGOS
 
@@ -42,6 +43,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--address", default=None, help="with --ray: address of a Ray cluster (default: a local instance)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this wall time")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
+                   help=f"format of the learning-curve figures (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
     p.add_argument("--verbose", type=int, default=0, help="stable-baselines3 verbosity (0, 1, 2)")
     return p
 
@@ -72,7 +75,7 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
                         resume=args.resume, seed=args.seed, max_minutes=args.max_minutes,
                         progress_bar=not args.no_progress, verbose=args.verbose, backend=args.backend,
-                        trust_model=args.trust_model)
+                        trust_model=args.trust_model, figure_format=args.figure_format)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -93,7 +96,8 @@ def _seeds(args, prog: str) -> int:
         doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,
                           timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe,
                           max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
-                          progress_bar=not args.no_progress, trust_model=args.trust_model)
+                          progress_bar=not args.no_progress, trust_model=args.trust_model,
+                          figure_format=args.figure_format)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -103,7 +107,7 @@ def _seeds(args, prog: str) -> int:
         print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, SM {f.get('safety_sm', float('nan')):.3f}, "
               f"CM {f.get('centering_cm', float('nan')):.3f}; target {when}")
     print(f"{doc['n_reached']} of {len(doc['seeds'])} seeds reached the target; {args.out}/seeds.json, "
-          f"{args.out}/learning_curves_seeds.png")
+          f"{args.out}/learning_curves_seeds.{args.figure_format}")
     return 0
 
 

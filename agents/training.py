@@ -39,6 +39,7 @@ import numpy as np
 import wt_inspect_env
 from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.env_config import TASKS
+from wt_inspect_env.figure_io import check_figure_format
 from wt_inspect_env.validation import check_choice
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
@@ -326,7 +327,7 @@ def _positive_int(name: str, value: Any) -> int:
 def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
           recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
           max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
-          backend: str = "vector", trust_model: bool = False) -> dict[str, Any]:
+          backend: str = "vector", trust_model: bool = False, figure_format: str = "png") -> dict[str, Any]:
     """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
 
     ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
@@ -335,9 +336,11 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     VecNormalize statistics are read from beside it). ``max_minutes``: stop early (and save) once
     this much wall time has passed in this call. ``trust_model``: resume from a checkpoint even if
     loading it runs code from it (a zip that needs unpickling, or an old ``.vecnormalize.pkl``);
-    without it such a checkpoint is a ValueError before anything is written.
+    without it such a checkpoint is a ValueError before anything is written. ``figure_format``: of
+    the learning curve (png, pdf, svg).
     """
     check_choice("algorithm", algo, ALGOS)
+    check_figure_format(figure_format)
     check_choice("task", task, TASKS)
     check_choice("backend", backend, BACKENDS)
     timesteps = _positive_int("timesteps", timesteps)
@@ -453,7 +456,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
     try:
         from .curves import plot_learning_curve
-        plot_learning_curve(out, out / "learning_curve.png")
+        plot_learning_curve(out, out / "learning_curve.png", fmt=figure_format)
     except Exception as exc:  # a figure must never lose a finished run
         print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
     return summary

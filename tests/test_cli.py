@@ -163,3 +163,27 @@ def test_plan_figure_labels_do_not_overlap_and_it_has_a_legend_of_every_surface(
     pdf = save_plan_figure(plan, tmp_path / "plan.png", "pdf")
     assert pdf == tmp_path / "plan.pdf" and pdf.read_bytes().startswith(b"%PDF")
     assert not (tmp_path / "plan.png").exists()
+
+
+def test_train_figures_in_every_format(tmp_path, capsys):
+    """The training figures (learning curve, curves over seeds) honour --figure-format too."""
+    import json
+
+    from agents.curves import plot_learning_curve
+    from agents.seeds import plot_seed_curves
+
+    evals = [{"env_steps": s, "wall_time_s": s / 1000, "mean": {"coverage": c, "safety_sm": c, "centering_cm": 0.99},
+              "score": c} for s, c in ((1000, 0.2), (2000, 0.6), (3000, 0.95))]
+    for seed in (0, 1):
+        run = tmp_path / f"seed_{seed}"
+        run.mkdir()
+        (run / "evaluations.json").write_text(json.dumps(evals))
+        (run / "episodes.csv").write_text("env_steps,return,safety_sm\n500,1.0,0.5\n1500,2.0,0.7\n2500,3.0,0.9\n")
+    svg = plot_learning_curve(tmp_path / "seed_0", tmp_path / "seed_0" / "learning_curve.png", fmt="svg")
+    assert svg.name == "learning_curve.svg" and svg.read_text().lstrip().startswith("<?xml")
+    pdf = plot_seed_curves(tmp_path, [0, 1], tmp_path / "learning_curves_seeds.png", "pdf")
+    assert pdf.name == "learning_curves_seeds.pdf" and pdf.read_bytes().startswith(b"%PDF")
+    assert not list(tmp_path.glob("*.png"))
+    with pytest.raises(SystemExit) as exc:
+        main(["train", "--algo", "ppo", "--timesteps", "10", "--out", str(tmp_path / "t"), "--figure-format", "gif"])
+    assert exc.value.code == 2 and not (tmp_path / "t").exists()
