@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("wt_inspect.ablation", "paper-faithful -> project default, one change at a time"),
     "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
     "demos": ("wt_inspect.demonstrations", "record expert (MPC) demonstrations as a Minari dataset"),
+    "campaign": ("wt_inspect.commands.campaign", "robustness campaign: many randomised episodes, crashes/fallbacks/memory"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),

@@ -38,6 +38,10 @@ from typing import Any, Callable, Mapping, Sequence
 from .runner import RunResult, RunSpec, execute
 
 OnResult = Callable[[RunResult], None]
+# What a worker does with one spec: ``task(spec, factory, record=..., progress=...) -> RunResult``;
+# :func:`~.runner.execute` for an evaluation, a campaign's own episode function (module-level, so
+# it pickles) for a campaign.
+Task = Callable[..., RunResult]
 BACKENDS = ("local", "ray")
 
 
@@ -155,28 +159,31 @@ def _init_worker(q: Any, parent_pid: int | None = None) -> None:
         die_with_parent(parent_pid)
 
 
-def _local_task(spec: RunSpec, factory: Any, record: bool) -> RunResult:
+def _local_task(spec: RunSpec, factory: Any, record: bool, task: Task | None = None) -> RunResult:
     q = _WORKER_QUEUE
     key = spec.filename
 
     def progress(t: float, total: float) -> None:
         if q is not None:
             q.put((key, t, total))
-    return execute(spec, factory, record=record, progress=progress)
+    return (task or execute)(spec, factory, record=record, progress=progress)
 
 
 def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None = None,
-              factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True) -> None:
-    """Run ``specs`` over ``jobs`` processes (default: all cores; 1 = in this process)."""
+              factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True,
+              task: Task | None = None) -> None:
+    """Run ``specs`` over ``jobs`` processes (default: all cores; 1 = in this process); each
+    through ``task`` (default :func:`~.runner.execute`)."""
     factories = dict(factories or {})
+    run = task or execute
     jobs = check_jobs(jobs)
     board = ProgressBoard(len(specs), progress)
     try:
         if jobs == 1 or len(specs) <= 1:
             for spec in specs:
                 key = spec.filename
-                res = execute(spec, factories.get(spec.controller), record=record,
-                              progress=lambda t, tot, k=key, s=spec: board.report(k, _label(s), t, tot))
+                res = run(spec, factories.get(spec.controller), record=record,
+                          progress=lambda t, tot, k=key, s=spec: board.report(k, _label(s), t, tot))
                 on_result(res)
                 board.finish(key, _note(res))
             return
@@ -201,7 +208,7 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None
                                       initializer=_init_worker, initargs=(q, os.getpid()))
         with sigterm_as_interrupt():
             try:
-                futures = {pool.submit(_local_task, s, factories.get(s.controller), record): s for s in specs}
+                futures = {pool.submit(_local_task, s, factories.get(s.controller), record, task): s for s in specs}
                 for fut in cf.as_completed(futures):
                     res = fut.result()
                     on_result(res)
@@ -237,7 +244,8 @@ def _import_ray() -> Any:
 
 
 def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | None = None, jobs: int | None = None,
-            factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True) -> None:
+            factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True,
+            task: Task | None = None) -> None:
     """Run ``specs`` as Ray tasks (one CPU each). Without ``address`` a local Ray instance with
     ``jobs`` CPUs is started (and stopped afterwards); with ``address`` (``"auto"`` or
     ``"ray://host:10001"``) an existing cluster is used - its nodes need this package installed.
@@ -258,7 +266,7 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
     refs: dict[Any, RunSpec] = {}
     with sigterm_as_interrupt():   # SIGTERM: cancel the tasks and stop the local Ray instance
         try:
-            refs = {remote.remote(s, factories.get(s.controller), record): s for s in specs}
+            refs = {remote.remote(s, factories.get(s.controller), record, task): s for s in specs}
             pending = list(refs)
             while pending:
                 done, pending = ray.wait(pending, num_returns=1)
@@ -279,8 +287,8 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
                 ray.shutdown()
 
 
-def _ray_task(spec: RunSpec, factory: Any, record: bool) -> RunResult:
-    return execute(spec, factory, record=record)
+def _ray_task(spec: RunSpec, factory: Any, record: bool, task: Task | None = None) -> RunResult:
+    return (task or execute)(spec, factory, record=record)
 
 
 def check_jobs(jobs: int | None) -> int:
@@ -294,14 +302,14 @@ def check_jobs(jobs: int | None) -> int:
 
 def run_specs(backend: str, specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None = None,
               address: str | None = None, factories: Mapping[str, Any] | None = None, record: bool = True,
-              progress: bool = True) -> None:
-    """Dispatch to :func:`run_local` or :func:`run_ray`."""
+              progress: bool = True, task: Task | None = None) -> None:
+    """Dispatch to :func:`run_local` or :func:`run_ray` (``task``: see :data:`Task`)."""
     if backend == "local":
         if address:
             raise ValueError(f"address {address!r} is only used by the ray backend")
-        run_local(specs, on_result, jobs=jobs, factories=factories, record=record, progress=progress)
+        run_local(specs, on_result, jobs=jobs, factories=factories, record=record, progress=progress, task=task)
     elif backend == "ray":
         run_ray(specs, on_result, address=address, jobs=jobs, factories=factories, record=record,
-                progress=progress)
+                progress=progress, task=task)
     else:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
