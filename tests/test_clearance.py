@@ -172,3 +172,13 @@ def test_the_baselines_keep_d_min_from_30_m_above(cls):
     worst, info = _fly(make, (0.0, 0.0, 30.0), 7.0)
     assert worst >= 3.0
     assert info["termination"] is None
+
+
+def test_the_direct_hpipm_path_warns_and_keeps_the_constraint_on_the_plugin():
+    """The direct HPIPM path has no path constraints: with the clearance the solver says so and
+    uses CasADi's HPIPM plugin, so the constraint is never silently dropped."""
+    from controllers.rti import RTIOptions
+    wall = TurbineProximity([_box((0.0, 0.0, 30.0), (1.0, 1.0, 1.0))])
+    with pytest.warns(RuntimeWarning, match="does not support path constraints"):
+        pol = VTNMPCPolicy(obstacles=wall, solver=RTIOptions(qp_mode="speed_abs", qp_solver="hpipm"))
+    assert pol.solver.qp_solver == "casadi" and pol.ocp.nh == 1

@@ -207,7 +207,8 @@ def test_python_api_custom_policy_object_and_factory():
     assert res2.metrics == res.metrics and obj.calls == 150
     # a factory that builds the registered controller scores exactly like its registry name
     from controllers.vtnmpc import VTNMPCPolicy
-    mine = evaluate_policy(lambda env: VTNMPCPolicy(params=env.params, d_ref=env.config.standoff),
+    mine = evaluate_policy(lambda env: VTNMPCPolicy(params=env.params, d_ref=env.config.standoff,
+                                                    obstacles=env.mission),   # as registered: the clearance
                            scenario="surface", wind=4.0, seed=0, max_time=1.5, record=False)
     ref = evaluate_policy("vtnmpc", scenario="surface", wind=4.0, seed=0, max_time=1.5, record=False)
     assert mine.metrics == ref.metrics and mine.arrays == {}
