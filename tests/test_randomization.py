@@ -182,7 +182,33 @@ def test_observation_noise_has_the_drawn_spread_and_leaves_the_rest_exact(lab_en
     assert info["metrics"] == exact["metrics"]
 
 
-def test_vector_env_refuses_randomization_in_one_line():
-    with pytest.raises(ValueError, match="randomization is not supported by the vector env") as e:
-        gym.make_vec(SURFACE, num_envs=2, vectorization_mode="vector_entry_point", randomization=True)
-    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("n", [1, 3])
+def test_vector_env_drone_i_is_the_randomised_single_env_seeded_s_plus_i(n):
+    """Randomised plants, noise and latency per drone, across autoresets: still bit for bit."""
+    from test_vector_env import _run_side_by_side
+
+    wide = dict(latency_steps=(0, 3), position_noise=(0.0, 0.05), attitude_noise=(0.0, 0.02))
+    seen = _run_side_by_side(n, 160, env_id=SURFACE, randomization=wide, start_noise=0.2, time_limit_s=0.5)
+    assert seen["resets"] >= n
+
+
+def test_vector_env_reports_each_drones_draw_and_flies_it():
+    venv = gym.make_vec(SURFACE, num_envs=3, vectorization_mode="vector_entry_point", randomization=True,
+                        time_limit_s=0.05, wind="none")
+    try:
+        venv.reset(seed=0)
+        u = venv.unwrapped
+        draws = list(u.randomization)
+        assert len({d.plant.mass for d in draws}) == 3
+        for i, d in enumerate(draws):
+            assert u.sim.plants[i] is d.plant and u.sim._thrust_scale[i] == d.thrust_scale
+        hover = np.tile(u.scaling.hover_action(), (3, 1))
+        for _ in range(5):
+            _, _, term, trunc, info = venv.step(hover)
+        assert (term | trunc).all()
+        for i in range(3):
+            assert info["final_info"]["randomization"]["mass"][i] == draws[i].plant.mass
+    finally:
+        venv.close()

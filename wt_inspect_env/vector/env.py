@@ -11,6 +11,10 @@ What is shared: the planned mission (one turbine, one task), the PyBullet client
 (:class:`~wt_inspect_env.vector.sim.BatchedQuadrotorSim`) and the camera-ray batch. Per-drone wind
 is supported (``winds=[spec_0, ..., spec_N-1]``); per-drone turbines or tasks are not (one mission
 is planned per vector env - make one vector env per turbine) and are refused with a clear error.
+Domain randomisation (``randomization=...``) is drawn per drone from drone ``i``'s stream exactly as
+the single env draws it (its plant, noise and latency; the draw of an ended episode is in
+``info["final_info"]["randomization"]``, the running ones in :attr:`randomization`); image
+observations and ``reset(options=...)`` are single-env only and refused.
 
 Autoreset: ``AutoresetMode.SAME_STEP`` (in ``metadata["autoreset_mode"]``) - a drone whose
 episode ends is reset inside the same ``step``; the returned observation is the first of its new
@@ -23,6 +27,7 @@ running episode are :meth:`metrics` ``(i)``.
 from __future__ import annotations
 
 import math
+from collections import deque
 from typing import Any, Sequence
 
 import gymnasium as gym
@@ -35,6 +40,8 @@ from ..camera import GimbalCamera
 from ..coverage import TriangleVisibility
 from ..env import observation_space, start_state
 from ..env_config import EnvConfig
+from ..randomization import RandomizationDraw, noisy_state
+from ..randomization import draw as draw_randomization
 from ..metrics import MetricsConfig
 from ..mission import build_mission
 from ..reference import InspectionReference, ReferenceConfig
@@ -78,11 +85,9 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         if "wind" in options and winds is not None:
             raise ValueError("give either wind (all drones) or winds (one per drone), not both")
         self.config = cfg = EnvConfig.from_kwargs(**options)
-        if cfg.obs_mode != "state" or cfg.randomization is not None:
-            bad = "obs_mode" if cfg.obs_mode != "state" else "randomization"
-            raise ValueError(f"{bad} is not supported by the vector env (single WindTurbineInspectionEnv only: its "
-                             "batched simulator shares one airframe and renders no images); got "
-                             f"{bad}={getattr(cfg, bad)!r}")
+        if cfg.obs_mode != "state":
+            raise ValueError(f"obs_mode is not supported by the vector env (single WindTurbineInspectionEnv only: "
+                             f"it renders no images); got obs_mode={cfg.obs_mode!r}")
         if winds is not None:
             if isinstance(winds, (str, bytes)) or not isinstance(winds, Sequence) or len(winds) != n:
                 got = len(winds) if isinstance(winds, Sequence) and not isinstance(winds, (str, bytes)) else winds
@@ -156,6 +161,10 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self._last_new = np.zeros(n, dtype=np.int64)
         self._last_visible = np.zeros(n, dtype=np.int64)
         self._reset_state = np.zeros((n, 10))   # commanded start states (the metrics' first sample)
+        # Domain randomisation per drone, drawn as the single env draws it (see _reset_drone).
+        self.randomization: list[RandomizationDraw | None] = [None] * n
+        self._noise_rngs: list[np.random.Generator | None] = [None] * n
+        self._commands: list[deque] = [deque() for _ in range(n)]
         self._started = False
         self.closed = False
 
@@ -210,6 +219,11 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             raise ValueError(f"actions must lie in [-1, 1], got actions[{bad}] = {a[bad].tolist()}")
         lo, hi = self._lo, self._hi
         commands = lo + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo)
+        if self.config.randomization is not None:
+            for i, r in enumerate(self.randomization):
+                if r is not None and r.latency_steps:     # command latency, as the single env
+                    self._commands[i].append(commands[i].copy())
+                    commands[i] = self._commands[i].popleft()
         self.sim.step(commands)
         self.steps += 1
         state = self.sim.state
@@ -248,11 +262,13 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                 final_info = {"metrics": self.metrics(i), "termination": _TERMINATIONS[code[i]],
                               "mission_complete": bool(complete[i]), "coverage": float(self.n_seen[i] / self.n_triangles),
                               "episode_steps": int(self.steps[i]), "variant": int(self.variant[i])}
+                if self.randomization[i] is not None:
+                    final_info["randomization"] = self.randomization[i].to_info()
                 infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
                 self._reset_drone(i)
             self._frames(ended)
             self._record_reset(ended)
-            fresh = self._observations(np.zeros(n, dtype=bool))
+            fresh = self._observations(np.zeros(n, dtype=bool), noisy=ended.tolist())
             for k in obs:
                 obs[k][ended] = fresh[k][ended]
         return obs, reward, terminated, truncated, infos
@@ -290,6 +306,11 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.reference.reset(i, frac)
         s = self.reference.sample
         state = start_state(s.ideal_position[i], s.point[i], cfg.start_offset, cfg.start_noise, rng)
+        if cfg.randomization is not None:
+            r = self.randomization[i] = draw_randomization(cfg.randomization, self.params, rng)
+            self.sim.set_plant(i, r.plant, r.thrust_scale)
+            self._noise_rngs[i] = np.random.default_rng(r.noise_seed)
+            self._commands[i] = deque([self.scaling.to_command(self._hover)] * r.latency_steps)
         self.sim.reset_drone(i, state)
         self._reset_state[i] = state
         self.counts[i] = 0
@@ -360,10 +381,22 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             k += m
         return out
 
-    def _observations(self, safe: np.ndarray) -> dict[str, np.ndarray]:
+    def _observations(self, safe: np.ndarray, noisy: Any = None) -> dict[str, np.ndarray]:
+        """All drones' observations; randomised observation noise is drawn for the drones in
+        ``noisy`` (default all) that are not ``safe`` - once per drone and step, as the single env."""
         s = self.reference.sample
-        return observations(self.sim.state, self.sim.body_rates, s.point, s.normal, s.velocity,
-                            self.n_seen / self.n_triangles, s.progress, safe=safe)
+        obs = observations(self.sim.state, self.sim.body_rates, s.point, s.normal, s.velocity,
+                           self.n_seen / self.n_triangles, s.progress, safe=safe)
+        if self.config.randomization is not None:
+            rows = range(self.num_envs) if noisy is None else noisy
+            for i in rows:
+                r = self.randomization[i]
+                if r is not None and r.has_noise and not safe[i]:
+                    row = {k: v[i] for k, v in obs.items()}
+                    noisy_state(row, r, self._noise_rngs[i])
+                    for k, v in row.items():
+                        obs[k][i] = v
+        return obs
 
     def _infos(self, code: np.ndarray | None, complete: np.ndarray | None,
                terms: dict[str, np.ndarray] | None) -> dict[str, Any]:

@@ -38,6 +38,7 @@ import pybullet as p
 from ..quadrotor import QuadrotorParams
 from ..pybullet_refs import call_releasing
 from ..rate_control import Mixer, RateController, RateGains
+from ..validation import check_positive
 from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_state,
                    create_drone_body, new_client, place_body)
 from ..wind import WindField, wind_velocities
@@ -123,6 +124,41 @@ class BatchedQuadrotorSim:
         self.in_collision = np.zeros(n, dtype=bool)
         self.last_wind = z.copy()
         self.geometry = np.zeros(n, dtype=np.int64)
+        self.plants: list[QuadrotorParams] = [params] * n
+        self._thrust_scale: np.ndarray | None = None    # per drone, once a plant differs (set_plant)
+
+    # ------------------------------------------------------------------ plants
+    def set_plant(self, i: int, plant: QuadrotorParams | None = None, thrust_scale: float = 1.0) -> None:
+        """:meth:`QuadrotorSim.set_plant` for drone ``i``: its physics (mass, inertia, motor lag, drag,
+        the wrench's torque rows, a thrust factor) follow ``plant``, the controller side stays
+        ``params``. The per-sub-step constants become per-drone arrays on the first call (the same
+        elementwise operations, so each drone still matches the single simulator bit for bit)."""
+        plant = self.params if plant is None else plant
+        if not isinstance(plant, QuadrotorParams):
+            raise ValueError(f"plant must be a QuadrotorParams or None, got {plant!r}")
+        check_positive("thrust_scale", thrust_scale)
+        if plant.rotor_positions.tolist() != self.params.rotor_positions.tolist() or \
+                plant.rotor_spin != self.params.rotor_spin:
+            raise ValueError("plant must keep the nominal rotor layout (arm_length, rotor_spin)")
+        n = self.n
+        if self._thrust_scale is None:      # scalars -> per-drone arrays
+            self._alpha, self._beta = np.full(n, self._alpha), np.full(n, self._beta)
+            self._A_tau = tuple(tuple(np.full(n, a) for a in row) for row in self._A_tau)
+            self._lin_drag = tuple(np.full(n, d) for d in self._lin_drag)
+            self._quad_drag = tuple(np.full(n, d) for d in self._quad_drag)
+            self._thrust_scale = np.ones(n)
+        k = SubstepConstants.of(plant, self.config, self.mixer if plant is self.params else Mixer(plant))
+        self._alpha[i], self._beta[i] = k.alpha, k.beta
+        for row, vals in zip(self._A_tau, k.A_tau):
+            for arr, v in zip(row, vals):
+                arr[i] = v
+        for arr, v in zip(self._lin_drag + self._quad_drag, k.lin_drag + k.quad_drag):
+            arr[i] = v
+        self._has_drag = self._has_drag or k.has_drag
+        self._thrust_scale[i] = float(thrust_scale)
+        self.plants[i] = plant
+        p.changeDynamics(self.body_ids[i], -1, mass=plant.mass, localInertiaDiagonal=list(plant.inertia),
+                         physicsClientId=self._client)
 
     # ------------------------------------------------------------------ world
     def _build_world(self, geometries: Sequence[Any]) -> None:
@@ -206,7 +242,8 @@ class BatchedQuadrotorSim:
         self.steps[i] = 0
         self.i_term[:, i] = self.d_term[:, i] = self.prev_rates[:, i] = 0.0
         self.saturation[:, i] = 0
-        self.f[i] = self.params.weight / 4.0
+        ts = 1.0 if self._thrust_scale is None else float(self._thrust_scale[i])
+        self.f[i] = self.plants[i].weight / ts / 4.0      # as QuadrotorSim.reset: the plant's hover
         self.in_collision[i] = False
         self.last_wind[i] = self._wind_at(i, 0.0)
 
@@ -264,6 +301,7 @@ class BatchedQuadrotorSim:
         zero = (0.0, 0.0, 0.0)
         alpha, beta = self._alpha, self._beta
         (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
+        ts = self._thrust_scale
         dlx, dly, dlz = self._lin_drag
         dqx, dqy, dqz = self._quad_drag
         bt, bx, by, bz = self._bt, self._bx, self._by, self._bz
@@ -299,6 +337,8 @@ class BatchedQuadrotorSim:
             f1 = f1 + alpha * (c1 - f1)
             f2 = f2 + alpha * (c2 - f2)
             f3 = f3 + alpha * (c3 - f3)
+            if ts is not None:                # randomised plants' thrust factors (set_plant)
+                g0, g1, g2, g3 = g0 * ts, g1 * ts, g2 * ts, g3 * ts
             if self._has_drag:
                 ax_, ay_, az_ = vel[:, 0] - wx, vel[:, 1] - wy, vel[:, 2] - wz
                 bxv = R[0] * ax_ + R[3] * ay_ + R[6] * az_
