@@ -116,29 +116,42 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
     out = prepare_out_dir(out)
     t0 = time.perf_counter()
     rows = plan_rows(steps)
-    flown: dict[tuple[str, str, float], dict[str, Any]] = {}
-    for i, row in enumerate(rows):
-        ek = _env_key(row["env"])
-        new = sorted({c for c in row["controllers"].values() if any((ek, c, float(w)) not in flown for w in winds)})
-        if new:
-            ev = run_evaluation(scenario, new, winds, (0,), out=out / "rows" / f"{i:02d}_{row['key']}",
-                                jobs=jobs, max_time=max_time, env_overrides=row["env"], figures=False,
-                                progress=progress)
-            for r in ev.rows():
-                flown[(ek, r["controller"], float(r["wind"]))] = r
-        row["cells"] = {}
-        for col, name in row["controllers"].items():
-            for w in winds:
-                r = flown[(ek, name, float(w))]
-                row["cells"][f"{col}@{w:g}"] = {m: float(r[m]) for m, _, _ in METRICS} | {
-                    "controller": name, "termination": r["termination"], "wall_time": float(r["wall_time"])}
     doc = {"scenario": scenario, "task": task, "winds": list(map(float, winds)), "max_time": max_time,
-           "wall_time_s": time.perf_counter() - t0, "rows": rows,
+           "wall_time_s": 0.0, "complete": False, "rows": [],
            "paper": {f"{col}@{w:g}": paper_numbers("paper", w, base)
                      for col, base in zip(COLUMNS, ("nmpc", "pampc", "vtnmpc")) for w in winds}}
-    write_text_atomic(out / "results.json", json.dumps(doc, indent=1, default=float) + "\n")
-    write_text_atomic(out / "results.md", markdown(doc))
-    figure(doc, out / "ablation.png")
+    flown: dict[tuple[str, str, float], dict[str, Any]] = {}
+
+    def write(final: bool) -> None:
+        # after every row, so an interrupted study still reports the rows it finished
+        doc["wall_time_s"] = time.perf_counter() - t0
+        write_text_atomic(out / "results.json", json.dumps(doc, indent=1, default=float) + "\n")
+        write_text_atomic(out / "results.md", markdown(doc))
+        if final and doc["rows"]:
+            figure(doc, out / "ablation.png")
+
+    try:
+        for i, row in enumerate(rows):
+            ek = _env_key(row["env"])
+            new = sorted({c for c in row["controllers"].values()
+                          if any((ek, c, float(w)) not in flown for w in winds)})
+            if new:
+                ev = run_evaluation(scenario, new, winds, (0,), out=out / "rows" / f"{i:02d}_{row['key']}",
+                                    jobs=jobs, max_time=max_time, env_overrides=row["env"], figures=False,
+                                    progress=progress)
+                for r in ev.rows():
+                    flown[(ek, r["controller"], float(r["wind"]))] = r
+            row["cells"] = {}
+            for col, name in row["controllers"].items():
+                for w in winds:
+                    r = flown[(ek, name, float(w))]
+                    row["cells"][f"{col}@{w:g}"] = {m: float(r[m]) for m, _, _ in METRICS} | {
+                        "controller": name, "termination": r["termination"], "wall_time": float(r["wall_time"])}
+            doc["rows"].append(row)
+            write(final=False)
+        doc["complete"] = True
+    finally:
+        write(final=True)
     return doc
 
 
@@ -163,6 +176,9 @@ def markdown(doc: Mapping[str, Any]) -> str:
              + f"; gust winds {', '.join(f'{w:g}' for w in doc['winds'])} m/s; seed 0. Cells: coverage / SM / CM "
              "in %, minimum distance in m; in brackets the change from the row above (only where it is "
              f"nonzero). Wall time {doc['wall_time_s']:.0f} s.", ""]
+    if not doc.get("complete", True):
+        lines += [f"**Incomplete: {len(doc['rows'])} of {len(STEPS)} rows finished** (rerun the same command to "
+                  "resume: finished runs are reused).", ""]
     for w in doc["winds"]:
         lines += [f"## Mean wind {w:g} m/s", "",
                   "| # | change | " + " | ".join(COLUMNS) + " |", "|---:|---|" + "---|" * len(COLUMNS)]
