@@ -14,7 +14,8 @@ from wt_inspect_env.texture import SpanTexture, vertex_normals
 SURFACE = "WindTurbineInspection-Surface-v0"
 
 
-@pytest.mark.parametrize("mode", ["rgb", "depth", "rgbd"])
+@pytest.mark.parametrize("mode", [pytest.param("rgb", marks=pytest.mark.slow),
+                                  pytest.param("depth", marks=pytest.mark.slow), "rgbd"])
 def test_check_env_passes_on_the_image_modes_headless(mode, monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     env = gym.make(SURFACE, obs_mode=mode, camera_resolution=(32, 24))

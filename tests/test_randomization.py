@@ -184,7 +184,7 @@ def test_observation_noise_has_the_drawn_spread_and_leaves_the_rest_exact(lab_en
 
 
 
-@pytest.mark.parametrize("n", [1, 3])
+@pytest.mark.parametrize("n", [1, pytest.param(3, marks=pytest.mark.slow)])
 def test_vector_env_drone_i_is_the_randomised_single_env_seeded_s_plus_i(n):
     """Randomised plants, noise and latency per drone, across autoresets: still bit for bit."""
     from test_vector_env import _run_side_by_side
