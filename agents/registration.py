@@ -47,12 +47,15 @@ def _check(algo: str):
             from .policy import algo_class, load_sidecar
             from .safe_load import check_safe
             check_safe(algo_class(algo), model, load_sidecar(model))
-        except ModuleNotFoundError as exc:
-            if exc.name and exc.name.split(".")[0] in {"torch", "stable_baselines3"}:
+        except ImportError as exc:
+            name = getattr(exc, "name", None) or ""
+            if isinstance(exc, ModuleNotFoundError) and name.split(".")[0] in {"torch", "stable_baselines3"}:
                 # refused here, before any run starts or any output directory is made
-                raise ValueError(f"needs the optional dependency {exc.name.split('.')[0]!r}; install it "
+                raise ValueError(f"needs the optional dependency {name.split('.')[0]!r}; install it "
                                  "with: pip install 'wt-inspect[rl]'") from None
-            raise
+            # the loader module itself cannot be imported: the loader reports that in one line
+            # (and runs the same safety checks before it loads anything)
+            return
     return check
 
 
@@ -78,7 +81,8 @@ def _loader(algo: str):
                                  "install it with: pip install 'wt-inspect[rl]'") from None
             raise ValueError(f"controller '{algo}:{path}' needs agents.policy.load_sb3_policy, which cannot "
                              f"be imported: {exc}") from None
-        return load_sb3_policy(algo, resolve_model_path(path), env, trust_model=trust_model)
+        trust = {"trust_model": True} if trust_model else {}   # the plain call unless the user consented
+        return load_sb3_policy(algo, resolve_model_path(path), env, **trust)
     return load
 
 
