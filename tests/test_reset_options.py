@@ -53,6 +53,20 @@ def test_options_hold_for_one_episode_then_the_constructor_config_returns():
         fresh.close()
 
 
+def test_an_episode_wind_is_built_once_per_spec_and_replays_with_its_seed():
+    env = gym.make(SURFACE).unwrapped
+    try:
+        dryden = {"type": "dryden", "mean_speed": 7.0}
+        _, first = _rollout(env, 20, seed=2, options={"wind": dryden})
+        field = env.sim.wind
+        _rollout(env, 5, seed=3, options={"wind": "none"})
+        _, again = _rollout(env, 20, seed=2, options={"wind": dict(dryden)})
+        assert env.sim.wind is field                  # reused, not rebuilt ...
+        np.testing.assert_array_equal(again, first)   # ... and reseeded: the same gusts
+    finally:
+        env.close()
+
+
 def test_start_progress_option_starts_further_along_the_path():
     env = gym.make(SURFACE).unwrapped
     try:

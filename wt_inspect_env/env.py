@@ -19,6 +19,7 @@ non-finite state (then ``info["termination"]`` says which). ``truncated``: the m
 """
 from __future__ import annotations
 
+import json
 import math
 from collections import deque
 from typing import Any
@@ -41,7 +42,7 @@ from .spaces import OBS_SHAPES, ActionScaling
 from .step_terms import observations, reward_terms
 from .texture import SpanTexture
 from .validation import check_array
-from .wind import make_wind
+from .wind import WindField, make_wind
 
 
 def _box(shape: tuple[int, ...], lo: float = -np.inf, hi: float = np.inf) -> spaces.Box:
@@ -141,6 +142,7 @@ class WindTurbineInspectionEnv(gym.Env):
         self.observation_space = observation_space(cfg.obs_mode, cfg.camera_resolution, cfg.depth_far)
         self._hover = self.scaling.hover_action()
         self.episode_config = cfg
+        self._winds: dict[str, WindField] = {}     # per-episode wind fields by spec (_episode_wind)
         self.randomization: RandomizationDraw | None = None
         self._noise_rng: np.random.Generator | None = None
         self._commands: deque = deque()
@@ -156,7 +158,7 @@ class WindTurbineInspectionEnv(gym.Env):
         # Options first, so bad ones are refused before anything changes; they hold for this
         # episode only (the next reset without them is the constructor's configuration again).
         ep = self.config.for_episode(options)
-        wind = make_wind(ep.wind) if options and "wind" in options else self.wind
+        wind = self._episode_wind(ep.wind) if options and "wind" in options else self.wind
         self.episode_config = ep
         if seed is None and not self._seeded:
             seed = self.config.seed
@@ -300,6 +302,20 @@ class WindTurbineInspectionEnv(gym.Env):
         }
 
     # ------------------------------------------------------------------ internals
+    def _episode_wind(self, spec: Any) -> WindField:
+        """The wind field of a ``reset(options={"wind": spec})``: built once per distinct spec (a
+        Dryden field's shaping filters take far longer to build than a reset) and reseeded at every
+        reset, so reusing it changes nothing; a few specs are kept."""
+        try:
+            key = json.dumps(spec, sort_keys=True)
+        except (TypeError, ValueError):     # a callable or WindField: used as given
+            return make_wind(spec)
+        field = self._winds.pop(key, None) or make_wind(spec)
+        self._winds[key] = field            # most recently used last
+        while len(self._winds) > 8:
+            self._winds.pop(next(iter(self._winds)))
+        return field
+
     def _texture(self, render_mode: str | None) -> SpanTexture | None:
         """The turbine's span markings, where images are made (image observations, rgb_array or
         human rendering); otherwise none, which saves building the drawn chunks."""
