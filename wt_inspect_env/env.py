@@ -16,6 +16,12 @@ phase-2 path follows.
 non-finite state (then ``info["termination"]`` says which). ``truncated``: the mission is complete
 (``info["mission_complete"]``) or the time limit is reached. ``info["metrics"]`` holds the
 :class:`~wt_inspect_env.metrics.InspectionMetrics` so far (as a dict).
+
+``reset(seed=..., options={...})`` changes one episode: its wind, start (``start_offset``,
+``start_noise``, ``start_progress``) and domain randomisation (:mod:`~wt_inspect_env.randomization`),
+validated as the constructor's keywords (:meth:`EnvConfig.for_episode`); the next reset without
+options is the constructor's configuration again. ``obs_mode`` ``rgb``/``depth``/``rgbd`` adds the
+gimbal camera's images (:func:`~wt_inspect_env.render.camera_images`) to the state Dict.
 """
 from __future__ import annotations
 
