@@ -143,6 +143,7 @@ def _overlaps(boxes) -> list[tuple[int, int]]:
     return [(i, j) for i in range(len(boxes)) for j in range(i + 1, len(boxes)) if boxes[i].overlaps(boxes[j])]
 
 
+@pytest.mark.slow
 def test_plan_figure_labels_do_not_overlap_and_it_has_a_legend_of_every_surface(tmp_path):
     from wt_inspect_env.planner import plan_inspection
     from wt_inspect_env.planner.plot import plan_figure, save_plan_figure
