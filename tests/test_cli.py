@@ -188,3 +188,16 @@ def test_train_figures_in_every_format(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["train", "--algo", "ppo", "--timesteps", "10", "--out", str(tmp_path / "t"), "--figure-format", "gif"])
     assert exc.value.code == 2 and not (tmp_path / "t").exists()
+
+
+def test_ablation_figure_in_every_format_and_the_flag_is_checked(tmp_path, capsys):
+    from wt_inspect import ablation
+
+    cell = {"coverage": 0.9, "safety": 0.8, "centering": 0.99, "min_distance": 6.0}
+    doc = {"scenario": "paper-faithful", "task": "surface", "winds": [4.0],
+           "rows": [{"key": k, "cells": {f"{c}@4": dict(cell) for c in ablation.COLUMNS}} for k in ("a", "b")]}
+    svg = ablation.figure(doc, tmp_path / "ablation.png", "svg")
+    assert svg == tmp_path / "ablation.svg" and svg.read_text().lstrip().startswith("<?xml")
+    with pytest.raises(SystemExit) as exc:
+        main(["ablation", "--out", str(tmp_path / "o"), "--figure-format", "tiff"])
+    assert exc.value.code == 2 and not (tmp_path / "o").exists()

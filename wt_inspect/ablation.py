@@ -45,7 +45,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from wt_inspect_env.atomic_io import atomic_path, write_text_atomic
+from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_figure
 
 from .evaluation import OutputDirError, prepare_out_dir, run_evaluation
 from .evaluation.scenarios import get_scenario, paper_numbers
@@ -107,8 +108,10 @@ def _env_key(env: Mapping[str, Any]) -> str:
 
 def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] = (4.0, 7.0),
                  jobs: int | None = None, max_time: float | None = None, progress: bool = False,
-                 steps: Sequence[AblationStep] = STEPS) -> dict[str, Any]:
-    """Fly the chain and write the study (see the module docstring); returns the JSON document."""
+                 steps: Sequence[AblationStep] = STEPS, figure_format: str = "png") -> dict[str, Any]:
+    """Fly the chain and write the study (see the module docstring); returns the JSON document.
+    ``figure_format``: of ``ablation.png`` (png, pdf or svg; the suffix follows it)."""
+    check_figure_format(figure_format)
     if task not in TASK_SCENARIOS:
         raise ValueError(f"unknown task {task!r}; valid: {', '.join(TASK_SCENARIOS)}")
     scenario = TASK_SCENARIOS[task]
@@ -128,7 +131,7 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
         write_text_atomic(out / "results.json", json.dumps(doc, indent=1, default=float) + "\n")
         write_text_atomic(out / "results.md", markdown(doc))
         if final and doc["rows"]:
-            figure(doc, out / "ablation.png")
+            figure(doc, out / "ablation.png", figure_format)
 
     try:
         for i, row in enumerate(rows):
@@ -205,8 +208,9 @@ def markdown(doc: Mapping[str, Any]) -> str:
     return "\n".join(lines)
 
 
-def figure(doc: Mapping[str, Any], path: Path) -> Path:
-    """Four panels (coverage, SM, CM, minimum distance) against the row, a line per column and wind."""
+def figure(doc: Mapping[str, Any], path: Path, fmt: str = "png") -> Path:
+    """Four panels (coverage, SM, CM, minimum distance) against the row, a line per column and wind,
+    written as ``fmt`` (``path``'s suffix is replaced by it); returns the written path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -226,10 +230,10 @@ def figure(doc: Mapping[str, Any], path: Path) -> Path:
     axes[0, 0].legend(fontsize=7, ncol=2)
     fig.suptitle(f"{doc['scenario']} -> project default, one change per row (task {doc['task']})")
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    return path
+    try:
+        return save_figure(fig, path, fmt)
+    finally:
+        plt.close(fig)
 
 
 def _floats(text: str) -> list[float]:
@@ -254,11 +258,13 @@ def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
     parser.add_argument("--jobs", type=int, default=None, help="parallel runs (default: the number of cores)")
     parser.add_argument("--max-time", type=float, default=None, help="cap each run at S simulated seconds")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
+    parser.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
+                        help="format of the ablation figure (default png; pdf and svg are vector)")
     args = parser.parse_args(argv)
     try:
         winds = _floats(args.winds)
         doc = run_ablation(args.out, task=args.task, winds=winds, jobs=args.jobs, max_time=args.max_time,
-                           progress=not args.no_progress)
+                           progress=not args.no_progress, figure_format=args.figure_format)
     except (ValueError, OutputDirError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
