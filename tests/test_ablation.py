@@ -42,7 +42,7 @@ def test_report_shows_each_rows_change_from_the_previous():
     md = markdown(_doc())
     assert "| 1 | lens 35 -> 24 mm | 95.0 (+5.0) / 80.0 / 99.0 / 6.00 `nmpc-authors`" in md
     assert "| 0 | paper-faithful" in md and "(+" not in md.split("| 0 |")[1].split("\n")[0]
-    assert "| | paper (Gazebo) | 91.6 / - / - / -" in md
+    assert "| | paper (Gazebo, full mission) | 91.6 / - / - / -" in md
 
 
 def test_bad_input_is_a_one_line_error(tmp_path, capsys):

@@ -192,17 +192,18 @@ def markdown(doc: Mapping[str, Any]) -> str:
                 c = row["cells"][f"{col}@{w:g}"]
                 p = prev_row["cells"][f"{col}@{w:g}"] if prev_row else None
                 parts = [_fmt(c[m], u) + _delta(c[m], p[m] if p else None, u) for m, _, u in METRICS]
-                tl = " ⏱" if c["termination"] == "time_limit" else ""
+                # a run capped by --max-time always ends at its time limit: mark only uncapped ones
+                tl = " ⏱" if c["termination"] == "time_limit" and not doc["max_time"] else ""
                 cells.append(" / ".join(parts) + f" `{c['controller']}`{tl}")
             lines.append(f"| {i} | {row['label']} | " + " | ".join(cells) + " |")
             prev_row = row
         paper = [doc["paper"].get(f"{col}@{w:g}", {}) for col in COLUMNS]
         if any(paper):
-            lines.append("| | paper (Gazebo) | " + " | ".join(
+            lines.append("| | paper (Gazebo, full mission) | " + " | ".join(
                 " / ".join(_fmt(p.get(m, math.nan), u) for m, _, u in METRICS) for p in paper) + " |")
         lines.append("")
-    lines += ["⏱: the run hit its time limit (the closed-loop reference waited for a drone blown off its pose).",
-              "", "Rows (see `wt_inspect/ablation.py`): " + "; ".join(
+    lines += (["⏱: the run hit its time limit (the closed-loop reference waited for a drone blown off its pose).",
+               ""] if not doc["max_time"] else []) + ["Rows (see `wt_inspect/ablation.py`): " + "; ".join(
                   f"{i} {r['key']}: env {json.dumps(r['env'], sort_keys=True)}" for i, r in enumerate(doc["rows"])
                   if i in (0, len(doc["rows"]) - 1)) + ".", ""]
     return "\n".join(lines)
