@@ -36,7 +36,7 @@ each step the nearest mesh point c_k and the outward direction n_k are found for
 predicted trajectory (the warm-started plan; stage 0 the measured position) and passed as
 stage-wise parameters of the half-space constraint
 
-    n_k^T (p_k - c_k) - max(0, -n_k^T v_k)^2 / (2 a_brake) + s_k >= d_min,
+    n_k^T (p_k - c_k) - max(0, -n_k^T v_k)^2 / (2 a_brake) + s_k >= d_min + back-off,
 
 with cost l2 s_k^2 / 2 (+ l1 s_k with s_k >= 0 when ``clearance_l1`` > 0) per stage. The braking term makes the constraint see the stopping
 distance at the approach speed: the 0.3 s horizons of the VT-NMPC and the NMPC are shorter than a
@@ -189,7 +189,14 @@ class MPCConfig:
     None for 3/7 d_ref, below d_ref; ``clearance_brake`` the deceleration [m/s^2] of the braking
     term; ``clearance_l1`` / ``clearance_l2`` the slack's L1 / L2 prices (L1 > 0 bounds it below by 0); ``clearance_queries`` how many
     stages of the predicted trajectory are looked up per step, evenly spread, each stage taking
-    the half-space of the nearest looked-up stage). ``weights`` may be a weight object of ``WEIGHTS`` or the name
+    the half-space of the nearest looked-up stage; ``clearance_refresh`` [m], default d_ref / 70:
+    the half-spaces are looked up again once a looked-up position has moved this far; nearer to the
+    turbine than halfway between d_min and d_ref they are looked up at every step - a supporting
+    plane of a convex part stays valid wherever the drone is, so reuse is safe, but at edges and
+    close in a fresh look-up is tighter); ``clearance_backoff`` [m], default d_ref / 70: the OCP
+    keeps d_min plus this, which absorbs the L2 slack's violation (multiplier / l2), the single
+    Gauss-Newton linearisation and the model-plant mismatch, so the flown distance stays >= d_min).
+    ``weights`` may be a weight object of ``WEIGHTS`` or the name
     of one of ``WEIGHT_SETS`` (set by each subclass). ``control_dt`` is the period at which
     :meth:`RTIPolicy.act` is called (default ``dt``; the warm start is shifted accordingly, see
     :func:`warm_start_shifts`). ``scaling`` defaults to the environment's action scaling of
@@ -219,6 +226,8 @@ class MPCConfig:
     clearance_l1: float = 0.0
     clearance_l2: float = 1e6
     clearance_queries: int = 4
+    clearance_refresh: float | None = None
+    clearance_backoff: float | None = None
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -257,6 +266,15 @@ class MPCConfig:
         put("clearance_l1", check_positive("clearance_l1", self.clearance_l1, allow_zero=True))
         put("clearance_l2", check_positive("clearance_l2", self.clearance_l2))
         put("clearance_queries", check_positive_int("clearance_queries", self.clearance_queries))
+        if self.clearance_refresh is None:
+            put("clearance_refresh", self.d_ref / 70.0)
+        put("clearance_refresh", check_positive("clearance_refresh", self.clearance_refresh, allow_zero=True))
+        if self.clearance_backoff is None:
+            put("clearance_backoff", self.d_ref / 70.0)
+        put("clearance_backoff", check_positive("clearance_backoff", self.clearance_backoff, allow_zero=True))
+        if self.d_min + self.clearance_backoff >= self.d_ref:
+            raise ValueError(f"d_min + clearance_backoff must be below d_ref ({self.d_ref!r} m), got "
+                             f"{self.d_min!r} + {self.clearance_backoff!r}")
 
     @property
     def hover_input(self) -> np.ndarray:
@@ -356,6 +374,7 @@ class RTIPolicy(Policy):
             self._stage_query = np.abs(np.arange(N + 1)[:, None] - self._query_stages[None, :]).argmin(axis=1)
             self._stage_params = np.zeros((N + 1, self.base_ocp.np + N_CLEARANCE_PARAMS))
         self.last_clearance = float("nan")
+        self._lookup: tuple[Any, ...] | None = None   # (positions, c, n, rotor position, min distance) of the last look-up
         self.solver: RTISolver | IpoptOCPSolver = self._make_solver(config.weights)
         self.scaling: ActionScaling = config.scaling
         self.shifts_per_step = warm_start_shifts(config.control_dt, config.dt)
@@ -404,6 +423,7 @@ class RTIPolicy(Policy):
         if self.obstacles is not None:
             self.obstacles.reset()
         self.last_clearance = float("nan")
+        self._lookup = None
         self._last_q = None
         self._ahead = False
         self.last_stats = SolveStats()
@@ -470,11 +490,17 @@ class RTIPolicy(Policy):
             pos[self._query_stages == 0] = x0[0:3]
         except RuntimeError:          # no plan yet (IPOPT before its first solve)
             pos = np.tile(x0[0:3], (len(self._query_stages), 1))
-        c, d, n = self.obstacles.closest(pos)
-        self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+        last = self._lookup
+        cfg = self.config
+        if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
+                or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
+            c, d, n = self.obstacles.closest(pos)
+            self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+            self._lookup = last = (pos, c, n, self.obstacles.index, float(d.min()))
+        c, n = last[1], last[2]
         k = self._stage_query
         P[:, npar:npar + 3] = n[k]
-        P[:, npar + 3] = np.einsum("ij,ij->i", n, c)[k] + self.config.d_min
+        P[:, npar + 3] = np.einsum("ij,ij->i", n, c)[k] + (self.config.d_min + self.config.clearance_backoff)
         return P
 
     @property
