@@ -66,6 +66,9 @@ def test_plan_text_summary_and_overrides(tmp_path, capsys):
     (["--spacing", "-1"], "spacing"),
     (["--clearance", "9"], "clearance"),
     (["--start", "0", "0", "50"], "start"),
+    (["--turbine", '{"blade_lenght": 40}'], "blade_lenght"),
+    (["--turbine", '{"preset": "v200"}'], "preset"),
+    (["--turbine", '{"blade_length": "40"}'], "blade_length"),
 ])
 def test_plan_bad_input_exits_2_naming_the_field_and_writes_nothing(tmp_path, capsys, args, field):
     out = tmp_path / "never"
@@ -74,6 +77,27 @@ def test_plan_bad_input_exits_2_naming_the_field_and_writes_nothing(tmp_path, ca
     err = capsys.readouterr().err
     assert field in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_plan_rotor_turn_auto_and_a_turbine_json(tmp_path, capsys):
+    # a rotor stopped at 20 deg azimuth, facing 45 deg: the paper's 120 deg turn cannot inspect every
+    # surface; with auto the planner chooses the turn, and says which surfaces it inspects where
+    base = ["--no-plot", "--rotor-azimuth", "20", "--facing", "45"]
+    assert plan_cmd.main(["--out", str(tmp_path / "fixed"), *base], prog="wt-inspect plan") == 2
+    assert "rotor_turn_deg" in capsys.readouterr().err
+    assert plan_cmd.main(["--out", str(tmp_path / "auto"), *base, "--rotor-turn", "auto", "--json"],
+                         prog="wt-inspect plan") == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["surfaces"] == 12 and (tmp_path / "auto" / "path.csv").is_file()
+    # the --turbine JSON is a TurbineSpec (a preset here); explicit options override its fields
+    assert plan_cmd.main(["--out", str(tmp_path / "json"), "--no-plot", "--json", "--turbine",
+                          '{"tower_height": 90.0, "blade_length": 30.0}', "--blade-length", "35"],
+                         prog="wt-inspect plan") == 0
+    turbine = json.loads(capsys.readouterr().out)["turbine"]
+    assert turbine["tower_height"] == 90.0 and turbine["blade_length"] == 35.0
+    with pytest.raises(SystemExit) as exc:
+        plan_cmd.main(["--out", str(tmp_path / "bad"), "--rotor-turn", "sometimes"], prog="wt-inspect plan")
+    assert exc.value.code == 2 and not (tmp_path / "bad").exists()
 
 
 def test_plan_unknown_option_is_rejected(tmp_path):

@@ -67,7 +67,7 @@ def check_start_offset(value: Any, name: str = "start_offset") -> tuple[float, f
     return (float(arr[0]), float(arr[1]), float(arr[2]))
 
 
-def _coerce(name: str, value: Any, cls: type) -> Any:
+def coerce_config(name: str, value: Any, cls: type) -> Any:
     """A dataclass instance from an instance, a mapping of its fields, or None (defaults)."""
     if value is None:
         return cls()
@@ -173,11 +173,11 @@ class EnvConfig:
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
         check_choice("task", self.task, TASKS)
         if self.turbine_mesh is None:
-            put("turbine", _coerce("turbine", self.turbine, TurbineSpec))
+            put("turbine", coerce_config("turbine", self.turbine, TurbineSpec))
         elif self.turbine is not None:
             raise ValueError("give either turbine (a spec) or turbine_mesh (a file), not both")
-        put("camera", _coerce("camera", self.camera, CameraConfig))
-        put("reward", _coerce("reward", self.reward, RewardConfig))
+        put("camera", coerce_config("camera", self.camera, CameraConfig))
+        put("reward", coerce_config("reward", self.reward, RewardConfig))
         if isinstance(self.drone, str):
             put("drone", get_preset(self.drone))
         elif not isinstance(self.drone, QuadrotorParams):

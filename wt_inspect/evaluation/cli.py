@@ -15,10 +15,10 @@ interrupted (finished runs are kept; rerun the same command to resume).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from typing import Any
 
+from wt_inspect_env.commands.args import json_object as _json
 from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 
 from . import OutputDirError, command_line, run_evaluation
@@ -26,18 +26,6 @@ from .backends import BACKENDS
 from .config import EvaluateConfig, load_config
 from .registry import entries, valid_names
 from .scenarios import SCENARIOS, WIND_TYPES
-
-
-def _json(name: str):
-    def parse(text: str) -> Any:
-        try:
-            value = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise argparse.ArgumentTypeError(f"{name} must be JSON, e.g. '{{\"key\": 1}}': {exc}") from None
-        if not isinstance(value, dict):
-            raise argparse.ArgumentTypeError(f"{name} must be a JSON object, got {text!r}")
-        return value
-    return parse
 
 
 def _list(kind: type, name: str):

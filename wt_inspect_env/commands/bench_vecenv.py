@@ -21,6 +21,7 @@ import time
 import gymnasium as gym
 import numpy as np
 
+from .args import json_object
 from .timing_reference import raw_pybullet_rate, rss_mb
 
 ENV_IDS = {"full": "WindTurbineInspection-v0", "blade": "WindTurbineInspection-Blade-v0",
@@ -131,20 +132,15 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     ap.add_argument("--task", default="full", choices=sorted(ENV_IDS))
     ap.add_argument("--steps", type=int, default=20000, help="aggregate steps per repeat and N (default 20000)")
     ap.add_argument("--repeats", type=int, default=3, help="timed blocks per N (default 3)")
-    ap.add_argument("--env", default=None, help="environment options as a JSON object (as gym.make keywords)")
+    ap.add_argument("--env", type=json_object("--env"), default=None,
+                    help="environment options as a JSON object (as gym.make keywords)")
     ap.add_argument("--json", action="store_true", help="print one JSON object keyed by N")
     args = ap.parse_args(argv)
     try:
         counts = _parse_counts(args.num_envs)
         if args.steps < 1 or args.repeats < 1:
             raise ValueError(f"--steps and --repeats must be positive, got {args.steps}, {args.repeats}")
-        options = json.loads(args.env) if args.env else {}
-        if not isinstance(options, dict):
-            raise ValueError(f"--env must be a JSON object, got {args.env!r}")
-        out = run_bench(counts, args.task, args.steps, args.repeats, options)
-    except json.JSONDecodeError as exc:
-        print(f"{prog}: --env is not valid JSON: {exc}", file=sys.stderr)
-        return 2
+        out = run_bench(counts, args.task, args.steps, args.repeats, args.env or {})
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2

@@ -14,6 +14,8 @@ import time
 from pathlib import Path
 
 from ..atomic_io import atomic_paths, check_out_dir
+from ..env_config import coerce_config
+from .args import float_or_auto, json_object
 from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection
 from ..planner.config import STANDOFF_MODES
@@ -41,6 +43,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
                     help=f"format of the plan figure (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
     t = ap.add_argument_group("turbine (defaults: the paper's Vestas V100)")
+    t.add_argument("--turbine", type=json_object("--turbine"), metavar="JSON",
+                   help="a TurbineSpec as a JSON object, as evaluate --turbine and gym.make's turbine= take it "
+                        "(e.g. '{\"preset\": \"nrel-5mw\"}'); the options below override its fields")
     t.add_argument("--tower-height", type=float, metavar="M", help=f"hub height [m] ({d.tower_height:g})")
     t.add_argument("--blade-length", type=float, metavar="M", help=f"[m] ({d.blade_length:g})")
     t.add_argument("--blade-width", type=float, metavar="M", help=f"chord [m] ({d.blade_width:g})")
@@ -58,7 +63,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--spacing", type=float, metavar="M", help=f"path sample spacing [m] ({c.spacing:g})")
     p.add_argument("--clearance", type=float, metavar="M",
                    help=f"min distance of the stand-off path to the turbine [m] ({c.clearance:g})")
-    p.add_argument("--rotor-turn", type=float, metavar="DEG", help=f"turn before phase 2 [deg] ({c.rotor_turn_deg:g})")
+    p.add_argument("--rotor-turn", type=float_or_auto("--rotor-turn"), default=c.rotor_turn_deg, metavar="DEG|auto",
+                   help=f"turn before phase 2 [deg] ({c.rotor_turn_deg:g}); auto: the planner chooses the rotor "
+                        "turns (none, one or more) that make every surface inspectable with the least flight")
     p.add_argument("--max-down", type=float, metavar="DEG",
                    help=f"steepest downward normal inspected with a level camera [deg] ({c.max_down_deg:g})")
     p.add_argument("--max-up", type=float, metavar="DEG", help=f"steepest upward normal [deg] ({c.max_up_deg:g})")
@@ -78,9 +85,11 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
     try:
         check_out_dir(out, "--out")
         t0 = time.perf_counter()
-        turbine = build_turbine(TurbineSpec(**_picked(args, _SPEC_ARGS)))
+        turbine = build_turbine(coerce_config("--turbine", {**(args.turbine or {}), **_picked(args, _SPEC_ARGS)},
+                                              TurbineSpec))
         t_build = time.perf_counter() - t0
-        plan = plan_inspection(turbine, PlannerConfig(**_picked(args, _PLAN_ARGS)))
+        plan = plan_inspection(turbine, PlannerConfig(**{**_picked(args, _PLAN_ARGS),
+                                                         "rotor_turn_deg": args.rotor_turn}))
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
@@ -116,12 +125,12 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
     if args.json:
         print(json.dumps(summary))
         return 0
-    n1, n2 = summary["surfaces_phase1"], summary["surfaces_phase2"]
     order = " ".join(f"{t.surface}{'^' if t.entry == 'root' else 'v'}" + (" |" if t.phase == 1 and i + 1 < len(plan.tour)
                                                                         and plan.tour[i + 1].phase == 2 else "")
                      for i, t in enumerate(plan.tour))
-    print(f"{summary['surfaces']} surfaces: {n1} in phase 1, {n2} in phase 2 after turning the rotor "
-          f"{plan.config.rotor_turn_deg:g} deg")
+    positions = "; ".join(f"{len(rp.surfaces)} at rotor position {rp.phase} (turned {rp.turn_deg:g} deg)"
+                          for rp in plan.rotor_positions)
+    print(f"{summary['surfaces']} surfaces: {positions}")
     print(f"tour (surface id, ^ entered at the root, v at the tip; | rotor turn): {order}")
     print(f"tour length {summary['tour_length_m']:.1f} m between stand-offs (flown stand-off path "
           f"{summary['path_length_m']:.1f} m, of which inspection {summary['inspection_length_m']:.1f} m)")
