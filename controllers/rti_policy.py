@@ -97,6 +97,13 @@ def weight_tuple(name: str, values: Any, n: int) -> tuple[float, ...]:
     return vals
 
 
+def _weight_number(name: str, value: Any) -> float:
+    """One weight from JSON data: a real number (not text, not a bool), finite, >= 0."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{name} must be a number, got {value!r}")
+    return check_positive(name, value, allow_zero=True)
+
+
 def check_positive_int(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -159,7 +166,60 @@ class LSQWeights:
         for i, v in enumerate(np.atleast_1d(getattr(self, self.INPUTS))):
             if v == 0:
                 raise ValueError(f"weights.{self.INPUTS}[{i}] must be positive (a zero input weight makes "
-                                 f"the QP singular), got {v!r}")
+                                 f"the QP singular), got {float(v)!r}")
+
+    @classmethod
+    def from_mapping(cls, data: Any, *, base: "LSQWeights | None" = None, source: str = "weights") -> "LSQWeights":
+        """Weights from plain data (a JSON object: field -> number, or list of numbers for a
+        per-row block). Fields left out keep ``base``'s values (default: the class defaults), so a
+        file may change one block. Checked before anything is built, one line naming the field and
+        value: an unknown field, a list of the wrong length, a scalar for a block or a list for a
+        scalar, text or a bool for a number, a negative or non-finite value. ``source`` prefixes
+        the message (the file's name)."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{source}: must be a JSON object of weight fields, got {type(data).__name__}")
+        base = cls() if base is None else base
+        if not isinstance(base, cls):
+            raise ValueError(f"{source}: base weights must be {cls.__name__}, got {type(base).__name__}")
+        valid = {f.name: f for f in fields(cls)}
+        values: dict[str, Any] = {}
+        for key, value in data.items():
+            if key not in valid:
+                raise ValueError(f"{source}: unknown field {key!r} (= {value!r}) for {cls.__name__}; "
+                                 f"valid: {', '.join(valid)}")
+            current = getattr(base, key)
+            label = f"{source}: {key}"
+            if isinstance(current, tuple):
+                if not isinstance(value, (list, tuple)) or len(value) != len(current):
+                    raise ValueError(f"{label} must be a list of {len(current)} numbers, got {value!r}")
+                values[key] = tuple(_weight_number(f"{label}[{i}]", v) for i, v in enumerate(value))
+            else:
+                values[key] = _weight_number(label, value)
+        try:
+            return dataclasses.replace(base, **values)
+        except ValueError as exc:   # the class's own checks (a zero input weight)
+            raise ValueError(f"{source}: {exc}") from None
+
+    @classmethod
+    def load(cls, path: Any, *, base: "LSQWeights | None" = None) -> "LSQWeights":
+        """Weights from a JSON file (never code: plain JSON, see :meth:`from_mapping`); a missing
+        or malformed file is a one-line ValueError naming it."""
+        import json
+        from pathlib import Path
+        p = Path(path)
+        try:
+            text = p.read_text(encoding="utf-8")
+        except OSError as exc:
+            raise ValueError(f"weights file {str(p)!r}: cannot read: {exc.strerror or exc}") from None
+        try:
+            data = json.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"weights file {str(p)!r}: not valid JSON: {exc}") from None
+        return cls.from_mapping(data, base=base, source=f"weights file {str(p)!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every field as plain JSON data (lists for per-row blocks): what :meth:`load` reads."""
+        return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}
 
     def _vector(self, layout: tuple[tuple[str, int], ...]) -> np.ndarray:
         parts = []
@@ -196,8 +256,10 @@ class MPCConfig:
     close in a fresh look-up is tighter); ``clearance_backoff`` [m], default d_ref / 70: the OCP
     keeps d_min plus this, which absorbs the L2 slack's violation (multiplier / l2), the single
     Gauss-Newton linearisation and the model-plant mismatch, so the flown distance stays >= d_min).
-    ``weights`` may be a weight object of ``WEIGHTS`` or the name
-    of one of ``WEIGHT_SETS`` (set by each subclass). ``control_dt`` is the period at which
+    ``weights`` may be a weight object of ``WEIGHTS``, the name
+    of one of ``WEIGHT_SETS`` (set by each subclass), a weights file ``PATH.json`` or a mapping
+    (:meth:`LSQWeights.load` / :meth:`LSQWeights.from_mapping`; missing fields keep the class's
+    default set). ``control_dt`` is the period at which
     :meth:`RTIPolicy.act` is called (default ``dt``; the warm start is shifted accordingly, see
     :func:`warm_start_shifts`). ``scaling`` defaults to the environment's action scaling of
     ``params``. ``solver`` defaults to HPIPM's ``speed_abs`` preset: these QPs have input bounds
@@ -234,9 +296,14 @@ class MPCConfig:
         put = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731 - frozen dataclass setter
         if not isinstance(self.params, QuadrotorParams):
             raise ValueError(f"params must be QuadrotorParams, got {type(self.params).__name__}")
+        if isinstance(self.weights, str) and self.weights not in self.WEIGHT_SETS and self.weights.endswith(".json"):
+            put("weights", self.WEIGHTS.load(self.weights, base=self._default_weights()))
+        elif isinstance(self.weights, Mapping):
+            put("weights", self.WEIGHTS.from_mapping(self.weights, base=self._default_weights()))
         if isinstance(self.weights, str):
             if self.weights not in self.WEIGHT_SETS:
-                raise ValueError(f"unknown weights {self.weights!r}; valid: {', '.join(self.WEIGHT_SETS)}")
+                raise ValueError(f"unknown weights {self.weights!r}; valid: {', '.join(self.WEIGHT_SETS)} "
+                                 "or a weights file PATH.json")
             put("weights", self.WEIGHT_SETS[self.weights])
         elif not isinstance(self.weights, self.WEIGHTS):
             raise ValueError(f"weights must be {self.WEIGHTS.__name__} or a set name, got {self.weights!r}")
@@ -275,6 +342,12 @@ class MPCConfig:
         if self.d_min + self.clearance_backoff >= self.d_ref:
             raise ValueError(f"d_min + clearance_backoff must be below d_ref ({self.d_ref!r} m), got "
                              f"{self.d_min!r} + {self.clearance_backoff!r}")
+
+    @classmethod
+    def _default_weights(cls) -> Any:
+        """The class's default weight set (what a weights file's missing fields keep)."""
+        default = next(f.default for f in fields(cls) if f.name == "weights")
+        return cls.WEIGHT_SETS[default] if isinstance(default, str) and default in cls.WEIGHT_SETS else cls.WEIGHTS()
 
     @property
     def hover_input(self) -> np.ndarray:

@@ -105,7 +105,9 @@ class PolicyEntry:
     ``ppo:models/agent.zip``) and its factory is ``factory(env, arg)``; ``check(arg)`` raises a
     one-line ValueError for a bad argument before any run starts, and ``fingerprint(arg)`` names
     what makes the argument's behaviour unique (a model file's content hash), so a changed model
-    is a different run. An entry with ``trust_option`` loads files that might carry code: its
+    is a different run. An entry with ``optional_argument`` (the argument's form for help, e.g.
+    ``"weights=FILE"``) works both plain (``factory(env)``) and as ``NAME:ARG`` (``factory(env, arg)``,
+    with ``check`` and ``fingerprint`` as above). An entry with ``trust_option`` loads files that might carry code: its
     ``factory`` and ``check`` take the keyword ``trust_model`` and run code from such a file only
     when it is True (the user's explicit ``--trust-model``); otherwise they refuse it.
     """
@@ -117,6 +119,7 @@ class PolicyEntry:
     check: Callable[..., None] | None = None
     fingerprint: Callable[[str], str] | None = None
     trust_option: bool = False
+    optional_argument: str | None = None
 
     def __post_init__(self) -> None:
         if not callable(self.factory):

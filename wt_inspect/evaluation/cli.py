@@ -24,7 +24,7 @@ from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from . import OutputDirError, command_line, run_evaluation
 from .backends import BACKENDS
 from .config import EvaluateConfig, load_config
-from .registry import entries, valid_names
+from .registry import argument_form, entries, valid_names
 from .scenarios import SCENARIOS, WIND_TYPES
 
 
@@ -53,7 +53,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                                                                   f"{', '.join(f'{w:g}' for w in s.winds)})"
                                                                   for k, s in SCENARIOS.items())
                                  + "\ncontrollers (registered entry points):\n"
-                                 + "\n".join(f"  {k + (':PATH' if e.takes_argument else ''):<13} {e.description}"
+                                 + "\n".join(f"  {argument_form(k):<13} {e.description}"
                                              for k, e in entries().items()))
     # Every default is None here: the defaults live in EvaluateConfig, so a flag that was not
     # given cannot override a key of --config.

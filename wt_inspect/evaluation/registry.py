@@ -10,7 +10,8 @@ a :class:`~wt_inspect_env.policy.PolicyEntry`::
 
 so this harness never imports ``controllers`` or ``agents`` by name, and a third-party controller
 plugs in exactly as ours do (as Gymnasium finds environments). Names are plain (``vtnmpc``,
-``nmpc``, ...) or, for entries that take an argument, ``NAME:ARG`` (``ppo:PATH.zip``).
+``nmpc``, ...) or, for entries that take an argument, ``NAME:ARG`` (``ppo:PATH.zip``; the MPCs take
+an optional one, ``vtnmpc:weights=FILE.json``).
 A factory takes the (unwrapped) environment and returns a policy with the common interface
 (``reset(seed=None)``, ``act(obs)``; see :mod:`wt_inspect_env.policy`).
 
@@ -77,9 +78,16 @@ def valid_names() -> str:
     if not names:
         return ("(none registered: the package metadata has no entry points of group "
                 f"{ENTRY_POINT_GROUP!r}; reinstall with pip install -e .)")
-    plain = [n for n in names if not _load(n).takes_argument]
-    with_arg = [f"{n}:PATH" for n in names if _load(n).takes_argument]
-    return ", ".join(plain + with_arg)
+    # plain names (and optional arguments) first, then the names that need an argument
+    return ", ".join(argument_form(n) for n in sorted(names, key=lambda n: _load(n).takes_argument))
+
+
+def argument_form(name: str) -> str:
+    """How a registered name is written: ``vtnmpc[:weights=FILE]``, ``ppo:PATH``, ``nmpc``."""
+    entry = _load(name)
+    if entry.takes_argument:
+        return f"{name}:PATH"
+    return f"{name}[:{entry.optional_argument}]" if entry.optional_argument else name
 
 
 def split_name(name: str) -> tuple[str, str | None]:
@@ -95,7 +103,9 @@ def split_name(name: str) -> tuple[str, str | None]:
     entry = _load(key)
     if entry.takes_argument and not arg:
         raise ValueError(f"controller {name!r} needs an argument after '{key}:' (e.g. {key}:PATH.zip)")
-    if not entry.takes_argument and sep:
+    if entry.optional_argument and sep and not arg:
+        raise ValueError(f"controller {name!r} needs an argument after '{key}:' (e.g. {key}:{entry.optional_argument})")
+    if not entry.takes_argument and not entry.optional_argument and sep:
         raise ValueError(f"controller {base!r} takes no argument, got {name!r}")
     return key, (arg if sep else None)
 
