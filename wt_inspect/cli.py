@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("wt_inspect.ablation", "paper-faithful -> project default, one change at a time"),
     "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
     "demos": ("wt_inspect.demonstrations", "record expert (MPC) demonstrations as a Minari dataset"),
+    "tune": ("wt_inspect.commands.tune", "tune an MPC's weights with Optuna; writes a weights file (NAME:weights=FILE)"),
     "campaign": ("wt_inspect.commands.campaign", "robustness campaign: many randomised episodes, crashes/fallbacks/memory"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
