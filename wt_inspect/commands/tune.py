@@ -271,9 +271,8 @@ def write_outputs(cfg: TuneConfig, study: optuna.Study, *, before: int, wall_tim
     w.writerow(["number", "state", "value", *attrs, *(f"x_{k}" for k in params), "wall_time_s"])
     for t in trials:
         dur = t.duration.total_seconds() if t.duration is not None else math.nan
-        w.writerow([t.number, t.state.name, "" if t.value is None else f"{t.value:.6g}",
-                    *(t.user_attrs.get(k, "") for k in attrs), *(f"{t.params[k]:.6g}" if k in t.params else ""
-                                                                for k in params), f"{dur:.3f}"])
+        w.writerow([t.number, t.state.name, "" if t.value is None else t.value,
+                    *(t.user_attrs.get(k, "") for k in attrs), *(t.params.get(k, "") for k in params), f"{dur:.3f}"])
     write_text_atomic(out / "trials.csv", buf.getvalue())
     summary = {"study": cfg.study_name, "storage": cfg.storage_url, "controller": cfg.controller,
                "scenario": cfg.scenario, "winds": list(cfg.winds), "seed": cfg.seed, "max_time": cfg.max_time,
