@@ -81,7 +81,7 @@ def test_two_trials_write_best_weights_that_build_a_controller_and_a_rerun_resum
     rows = list(csv.DictReader((out / "trials.csv").open()))
     assert [r["number"] for r in rows] == ["0", "1"] and all(r["state"] == "COMPLETE" for r in rows)
     # trial 0 is the controller's own weights
-    assert json.loads((out / "trials" / "trial-0.json").read_text()) == VTNMPCWeights().to_dict()
+    assert json.loads((out / "trials" / "vtnmpc-surface" / "trial-0.json").read_text()) == VTNMPCWeights().to_dict()
     summary = json.loads((out / "tune.json").read_text())
     assert summary["best"]["weights"] == weights.to_dict() and summary["trials"] == 2
     assert summary["best"]["value"] == max(float(r["value"]) for r in rows)
@@ -92,11 +92,14 @@ def test_two_trials_write_best_weights_that_build_a_controller_and_a_rerun_resum
     finally:
         env.close()
 
-    assert tune.main([*args, "--trials", "1"]) == 0          # same storage and study name: one more trial
+    # same storage and study name: two more trials, in two worker processes sharing the storage
+    assert tune.main([*args, "--trials", "2", "--jobs", "2"]) == 0
     study = optuna.load_study(study_name="vtnmpc-surface", storage=f"sqlite:///{out.resolve() / 'study.db'}")
-    assert len(study.trials) == 3 and study.trials[0].params == {k: 1.0 for k in tune.blocks(VTNMPCWeights())}
-    assert len(list(csv.DictReader((out / "trials.csv").open()))) == 3
-    assert json.loads((out / "tune.json").read_text())["added_now"] == 1
+    assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 4
+    assert study.trials[0].params == {k: 1.0 for k in tune.blocks(VTNMPCWeights())}
+    assert len({tuple(sorted(t.params.items())) for t in study.trials}) == 4     # no point flown twice
+    assert len(list(csv.DictReader((out / "trials.csv").open()))) == 4
+    assert json.loads((out / "tune.json").read_text())["added_now"] == 2
 
 
 def test_a_trial_below_the_median_after_the_first_wind_is_pruned(tmp_path, monkeypatch):
@@ -112,7 +115,7 @@ def test_a_trial_below_the_median_after_the_first_wind_is_pruned(tmp_path, monke
 
     monkeypatch.setattr(tune, "evaluate_policy", fake_evaluate)
     cfg = tune.TuneConfig(controller="vtnmpc", winds=(0.0, 4.0), out=str(tmp_path), trials=5)
-    (tmp_path / "trials").mkdir()
+    (tmp_path / "trials" / "vtnmpc-surface").mkdir(parents=True)
     study = tune._study(cfg)
     study.optimize(tune.Objective(cfg, VTNMPCWeights()), n_trials=5)
     states = [t.state for t in study.trials]

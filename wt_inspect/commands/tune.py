@@ -31,7 +31,7 @@ resumed study does not repeat its first random points). Outputs, each written at
     OUT/trials.csv            one row per trial: state, value, per-wind scores, multipliers, wall time
     OUT/tune.json             the study, the objective, the best trial
     OUT/optimisation_history.png   trial values and the best so far
-    OUT/trials/trial-N.json   the weights file each trial flew
+    OUT/trials/STUDY/trial-N.json   the weights file each trial flew
 
 Exit code 0 when the study ran, 2 for bad arguments (nothing written), 130 when interrupted
 (finished trials are in the storage: rerun the same command to go on).
@@ -172,7 +172,8 @@ class Objective:
 
     def __init__(self, cfg: TuneConfig, weights: Any) -> None:
         self.cfg, self.weights, self.blocks = cfg, weights, blocks(weights)
-        self.trial_dir = Path(cfg.out) / "trials"
+        safe = "".join(c if c.isalnum() or c in "-_." else "-" for c in cfg.study_name)
+        self.trial_dir = Path(cfg.out) / "trials" / safe   # trial numbers are per study
 
     def __call__(self, trial: optuna.Trial) -> float:
         cfg = self.cfg
@@ -219,23 +220,28 @@ def tune(cfg: TuneConfig) -> dict[str, Any]:
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     out = Path(cfg.out)
     weights = default_weights(cfg)
-    (out / "trials").mkdir(parents=True, exist_ok=True)
+    objective = Objective(cfg, weights)
+    objective.trial_dir.mkdir(parents=True, exist_ok=True)
     study = _study(cfg)
     before = len(study.trials)
-    if before == 0:   # the controller's own weights first: the baseline every trial is compared with
-        study.enqueue_trial({k: 1.0 for k in blocks(weights)})
-    jobs = min(check_jobs(cfg.jobs), cfg.trials)
+    study.sampler = optuna.samplers.TPESampler(seed=cfg.seed + before)
+    todo = cfg.trials
     t0 = time.perf_counter()
     bar = tqdm(total=cfg.trials, desc=f"tune {cfg.study_name}", unit="trial", disable=not cfg.progress)
+    tick = [lambda s, t: bar.update(1)]
     try:
-        if jobs == 1:
-            study.sampler = optuna.samplers.TPESampler(seed=cfg.seed + before)
-            study.optimize(Objective(cfg, weights), n_trials=cfg.trials, catch=(),
-                           callbacks=[lambda s, t: bar.update(1)])
-        else:
+        if before == 0:   # the controller's own weights first, in this process (workers racing for an
+            # enqueued trial on SQLite can run it twice): the baseline every trial is compared with
+            study.enqueue_trial({k: 1.0 for k in blocks(weights)})
+            study.optimize(objective, n_trials=1, catch=(), callbacks=tick)
+            todo -= 1
+        jobs = min(check_jobs(cfg.jobs), max(todo, 1))
+        if todo and jobs == 1:
+            study.optimize(objective, n_trials=todo, catch=(), callbacks=tick)
+        elif todo:
             ctx = multiprocessing.get_context("spawn")
-            procs = [ctx.Process(target=_worker, args=(cfg, weights, n, before + 1000 * i))
-                     for i, n in enumerate(_shares(cfg.trials, jobs))]
+            procs = [ctx.Process(target=_worker, args=(cfg, weights, n, before + 1 + 1000 * i))
+                     for i, n in enumerate(_shares(todo, jobs))]
             for p in procs:
                 p.start()
             while any(p.is_alive() for p in procs):
@@ -357,6 +363,9 @@ def main(argv: list[str], prog: str = "wt-inspect tune") -> int:
         print(f"\n{prog}: interrupted; finished trials are in {cfg.storage_url} - rerun the same command to go on",
               file=sys.stderr)
         return 130
+    except RuntimeError as exc:   # a worker process failed (its traceback is above) or no trial completed
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 1
     best = summary["best"]
     print(f"study {summary['study']}: {summary['added_now']} trials added ({summary['trials']} in total, "
           f"{summary['pruned']} pruned) in {summary['wall_time_s']:.1f} s; best trial {best['number']} "
