@@ -298,6 +298,7 @@ def _figure(cfg: TuneConfig, trials: Sequence[Any], path: Path) -> None:
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator
     fig, ax = plt.subplots(figsize=(6.4, 3.6))
     done = [t for t in trials if t.state == optuna.trial.TrialState.COMPLETE]
     pruned = [t for t in trials if t.state == optuna.trial.TrialState.PRUNED and t.intermediate_values]
@@ -313,6 +314,7 @@ def _figure(cfg: TuneConfig, trials: Sequence[Any], path: Path) -> None:
         ys.append(best)
     ax.step(xs, ys, where="post", color="C3", label="best so far")
     ax.set_xlabel("trial")
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_ylabel("objective (coverage + SM + CM - crash)")
     ax.set_title(f"{cfg.study_name}: winds {', '.join(f'{w:g}' for w in cfg.winds)} m/s", fontsize=10)
     ax.grid(alpha=0.3)
