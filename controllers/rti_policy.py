@@ -151,7 +151,7 @@ class LSQWeights:
     INPUTS: ClassVar[str] = "inputs"
 
     def __post_init__(self) -> None:
-        check_field_types(self, "weights ")
+        check_field_types(self, "weights.")
         rows = dict(self.STAGE) | dict(self.TERMINAL)
         for f in fields(self):
             if f.name == "terminal_factor":

@@ -256,7 +256,7 @@ def test_scenarios_build_the_papers_setups():
         env_options("paper", 4.0, overrides={"task": "surface"})
     with pytest.raises(ValueError, match="mean_speed"):
         env_options("paper", 4.0, wind_options={"mean_speed": 3})
-    with pytest.raises(ValueError, match="wind must be"):
+    with pytest.raises(ValueError, match="wind speed must be non-negative"):
         env_options("paper", -1.0)
 
 
