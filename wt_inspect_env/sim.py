@@ -191,6 +191,21 @@ _MAX_CACHED_OBSTACLES = 4
 _CHUNK_M = 6.0                    # grid cell [m] of the textured obstacle's drawn chunks
 
 
+def checked_plant(params: QuadrotorParams, plant: QuadrotorParams | None,
+                  thrust_scale: float) -> QuadrotorParams:
+    """The airframe a simulator integrates instead of its nominal ``params`` (``None``: the nominal
+    one), refused with one line unless it keeps the nominal rotor layout - the mixer and the rate
+    loop are built for that layout, so another one would not be a perturbed plant but another drone.
+    One home for the single and the batched simulator's ``set_plant``."""
+    plant = params if plant is None else plant
+    if not isinstance(plant, QuadrotorParams):
+        raise ValueError(f"plant must be a QuadrotorParams or None, got {plant!r}")
+    check_positive("thrust_scale", thrust_scale)
+    if plant.rotor_positions.tolist() != params.rotor_positions.tolist() or plant.rotor_spin != params.rotor_spin:
+        raise ValueError("plant must keep the nominal rotor layout (arm_length, rotor_spin)")
+    return plant
+
+
 class QuadrotorSim:
     """A PyBullet quadrotor with a PX4-like rate loop, motor lag, drag and wind (see module doc)."""
 
@@ -468,13 +483,7 @@ class QuadrotorSim:
         before :meth:`reset` (which starts the rotors at the plant's hover thrust).
         """
         self._check_open()
-        plant = self.params if plant is None else plant
-        if not isinstance(plant, QuadrotorParams):
-            raise ValueError(f"plant must be a QuadrotorParams or None, got {plant!r}")
-        check_positive("thrust_scale", thrust_scale)
-        if plant.rotor_positions.tolist() != self.params.rotor_positions.tolist() or \
-                plant.rotor_spin != self.params.rotor_spin:
-            raise ValueError("plant must keep the nominal rotor layout (arm_length, rotor_spin)")
+        plant = checked_plant(self.params, plant, thrust_scale)
         mixer = self.mixer if plant is self.params else Mixer(plant)
         k = SubstepConstants.of(plant, self.config, mixer)
         self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau

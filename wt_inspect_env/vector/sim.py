@@ -38,8 +38,7 @@ import pybullet as p
 from ..quadrotor import QuadrotorParams
 from ..pybullet_refs import call_releasing
 from ..rate_control import Mixer, RateController, RateGains
-from ..validation import check_positive
-from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_state,
+from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_plant, checked_state,
                    create_drone_body, new_client, place_body)
 from ..wind import WindField, wind_velocities
 
@@ -133,13 +132,7 @@ class BatchedQuadrotorSim:
         the wrench's torque rows, a thrust factor) follow ``plant``, the controller side stays
         ``params``. The per-sub-step constants become per-drone arrays on the first call (the same
         elementwise operations, so each drone still matches the single simulator bit for bit)."""
-        plant = self.params if plant is None else plant
-        if not isinstance(plant, QuadrotorParams):
-            raise ValueError(f"plant must be a QuadrotorParams or None, got {plant!r}")
-        check_positive("thrust_scale", thrust_scale)
-        if plant.rotor_positions.tolist() != self.params.rotor_positions.tolist() or \
-                plant.rotor_spin != self.params.rotor_spin:
-            raise ValueError("plant must keep the nominal rotor layout (arm_length, rotor_spin)")
+        plant = checked_plant(self.params, plant, thrust_scale)
         n = self.n
         if self._thrust_scale is None:      # scalars -> per-drone arrays
             self._alpha, self._beta = np.full(n, self._alpha), np.full(n, self._beta)
