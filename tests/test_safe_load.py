@@ -77,8 +77,9 @@ def test_shipped_models_act_exactly_as_before_the_conversion():
     pickle-based loader (tests/data/shipped_model_actions.npz, recorded before the conversion)."""
     import torch
     ref = np.load(DATA)
-    names = shipped_models()
-    assert names == ["ppo_blade_wind_mix", "ppo_full_wind_mix", "ppo_surface", "ppo_surface_wind_mix"]
+    # the four models shipped with pickled statistics before the conversion (later models never had them)
+    names = ["ppo_blade_wind_mix", "ppo_full_wind_mix", "ppo_surface", "ppo_surface_wind_mix"]
+    assert set(names) <= set(shipped_models())
     for name in names:
         pol = load_sb3_policy("ppo", MODELS_DIR / f"{name}.zip")
         x = np.stack([pol.normalize(f) for f in ref["features"]])
