@@ -28,7 +28,7 @@ _SPEC_ARGS = {  # option -> TurbineSpec field
     "facing": "facing_deg", "position": "position",
 }
 _PLAN_ARGS = {
-    "standoff": "standoff", "spacing": "spacing", "clearance": "clearance", "rotor_turn": "rotor_turn_deg",
+    "standoff": "standoff", "spacing": "spacing", "clearance": "clearance",
     "max_down": "max_down_deg", "max_up": "max_up_deg", "standoff_mode": "standoff_mode", "start": "start",
 }
 
@@ -88,8 +88,8 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
         turbine = build_turbine(coerce_config("--turbine", {**(args.turbine or {}), **_picked(args, _SPEC_ARGS)},
                                               TurbineSpec))
         t_build = time.perf_counter() - t0
-        plan = plan_inspection(turbine, PlannerConfig(**{**_picked(args, _PLAN_ARGS),
-                                                         "rotor_turn_deg": args.rotor_turn}))
+        # --rotor-turn always reaches the planner: None (auto) is a value, not "not given"
+        plan = plan_inspection(turbine, PlannerConfig(**_picked(args, _PLAN_ARGS), rotor_turn_deg=args.rotor_turn))
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
