@@ -44,13 +44,14 @@ stop from a fast approach, so a position-only constraint would only appear once 
 A half-space through the closest point of a convex part of the mesh contains none of that part, so
 p_k in it is at least d_min from that part. The slack s_k (an extra input priced in the
 least-squares cost; the command is the inputs without it) keeps the QP feasible when the measured
-state is already inside. The default is a pure L2 slack, unbounded: where the constraint is
-inactive the cost alone puts s_k = 0, so the QP has no extra active bound and HPIPM needs as few
-iterations as without the constraint; an active constraint is violated by its multiplier / l2
-(hence the large default l2). An L1 price (``clearance_l1`` > 0, the slack then bounded below by
-0) makes the constraint exact whenever the multiplier is below it, but every stage's slack bound is
-then active with that multiplier, which costs interior-point iterations (measured: 6 instead of 2
-with l1 = 1e5). ``clearance=False`` or no ``obstacles`` builds the OCP without any of it, exactly
+state is already inside. The default prices it with L1 and L2 (``clearance_l1`` = ``clearance_l2``
+= 1e3, the slack bounded below by 0): the L1 price makes the constraint exact whenever its
+multiplier is below it, and the small L2 price keeps the QP well scaled. A pure L2 slack
+(``clearance_l1=0``: unbounded, violated by multiplier / l2, so l2 must be large) needs no active
+slack bound, about one interior-point iteration fewer, but with l2 = 1e6 the QPs of fast approaches
+from far starts were so badly conditioned that HPIPM stopped at its iteration limit or its minimum
+step (``wt-inspect campaign``; results/campaign has the counts).
+``clearance=False`` or no ``obstacles`` builds the OCP without any of it, exactly
 as before.
 """
 from __future__ import annotations
@@ -285,8 +286,8 @@ class MPCConfig:
     clearance: bool = True
     d_min: float | None = None
     clearance_brake: float = 3.0
-    clearance_l1: float = 0.0
-    clearance_l2: float = 1e6
+    clearance_l1: float = 1e3
+    clearance_l2: float = 1e3
     clearance_queries: int = 4
     clearance_refresh: float | None = None
     clearance_backoff: float | None = None

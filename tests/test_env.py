@@ -136,6 +136,23 @@ def test_terminates_when_leaving_the_working_volume():
     env.close()
 
 
+def test_a_start_far_across_the_rotor_plane_is_inside_its_working_volume():
+    # The mission's box is thin along y (the rotor axis): a start 40 m in front of the path was
+    # outside it and ended the episode at its first step. The volume now holds the start.
+    env = make(wind="none", start_offset=(0.0, 40.0, 0.0))
+    _, info = env.reset(seed=0)
+    u = env.unwrapped
+    start = u.sim.state[0:3].copy()
+    base_lo, base_hi = u._vol_base
+    assert start[1] > base_hi[1]                       # outside the mission's own box
+    assert np.all(u._vol_lo <= start - 30.0) and np.all(u._vol_hi >= start + 30.0)
+    _, _, term, trunc, info = env.step(u.scaling.hover_action())
+    assert not term and not trunc
+    env.reset(seed=0, options={"start_offset": (0.0, 0.0, 0.0)})   # the next episode's own box
+    assert np.array_equal(u._vol_hi, np.maximum(base_hi, u.sim.state[0:3] + 30.0))
+    env.close()
+
+
 def test_coverage_grows_while_facing_the_surface_and_counts_new_triangles_once():
     env = make(wind="none")
     obs, info = env.reset(seed=0)

@@ -74,6 +74,12 @@ def _run_side_by_side(n: int, steps: int, seed: int = 3, env_id: str = ENV, wind
     return seen
 
 
+def test_far_start_across_the_rotor_plane_matches_the_single_env():
+    # the per-drone working volume holds each drone's start, as the single env's does
+    seen = _run_side_by_side(2, 40, start_offset=(0.0, 40.0, 0.0), start_noise=0.5)
+    assert seen["resets"] == 0
+
+
 @pytest.mark.parametrize("n", [1, 4, 16])
 def test_drone_i_is_the_single_env_seeded_s_plus_i_across_autoresets(n):
     # start noise makes the drones differ; the 1.5 s limit forces autoresets mid-run

@@ -81,6 +81,16 @@ def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84
     return spaces.Dict(entries)
 
 
+def grow_to_start(lo: np.ndarray, hi: np.ndarray, start: np.ndarray, margin: float
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The episode's working volume: the mission's box grown to hold the start position with
+    ``margin`` round it, so that a start far off the path (``start_offset``) is not already a
+    departure from the working volume (the mission's box is thin across the rotor plane)."""
+    start = np.asarray(start, dtype=float)
+    lo = np.minimum(lo, start - margin)
+    return lo, np.maximum(hi, start + margin)
+
+
 def start_state(ideal_position: np.ndarray, point: np.ndarray, start_offset: Any, start_noise: float,
                 rng: np.random.Generator) -> np.ndarray:
     """The model state an episode starts from: the ideal stand-off pose plus the fixed
@@ -142,7 +152,8 @@ class WindTurbineInspectionEnv(gym.Env):
                             lag_threshold=cfg.reference_lag, stop_threshold=cfg.reference_stop))
         self.time_limit = cfg.time_limit_s or (1.5 * self.reference.nominal_duration + 30.0)
         lo, hi = self.mission.working_volume(cfg.working_margin)
-        self._vol_lo, self._vol_hi = lo, hi
+        self._vol_base = (lo, hi)
+        self._vol_lo, self._vol_hi = lo.copy(), hi.copy()
 
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.observation_space = observation_space(cfg.obs_mode, cfg.camera_resolution, cfg.depth_far)
@@ -187,6 +198,7 @@ class WindTurbineInspectionEnv(gym.Env):
             self._commands = deque([self.scaling.to_command(self._hover)] * r.latency_steps)
         elif self.sim.plant is not self.params:
             self.sim.set_plant()
+        self._vol_lo, self._vol_hi = grow_to_start(*self._vol_base, state[0:3], self.config.working_margin)
         self.sim.reset(state)
         self.coverage.reset()
         self.metrics.reset()

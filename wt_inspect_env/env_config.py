@@ -114,7 +114,8 @@ class EnvConfig:
         of the first phase's path (0: at its start; RL training on the blade task uses 0.9 so
         that short training episodes also see the transitions round the blade edges). Coverage
         and metrics count from the start point.
-    working_margin: the working volume is the turbine's bounding box grown by this [m].
+    working_margin: the working volume is the bounding box of the turbine, the path and the
+        episode's start position, grown by this [m].
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and

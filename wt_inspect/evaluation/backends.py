@@ -35,6 +35,8 @@ import threading
 import time
 from typing import Any, Callable, Mapping, Sequence
 
+from wt_inspect_env.commands.timing_reference import release_free_heap
+
 from .runner import RunResult, RunSpec, execute
 
 OnResult = Callable[[RunResult], None]
@@ -166,7 +168,10 @@ def _local_task(spec: RunSpec, factory: Any, record: bool, task: Task | None = N
     def progress(t: float, total: float) -> None:
         if q is not None:
             q.put((key, t, total))
-    return (task or execute)(spec, factory, record=record, progress=progress)
+    try:
+        return (task or execute)(spec, factory, record=record, progress=progress)
+    finally:
+        release_free_heap()   # a long-lived worker keeps no freed arena pages between runs
 
 
 def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None = None,
@@ -288,7 +293,10 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
 
 
 def _ray_task(spec: RunSpec, factory: Any, record: bool, task: Task | None = None) -> RunResult:
-    return (task or execute)(spec, factory, record=record)
+    try:
+        return (task or execute)(spec, factory, record=record)
+    finally:
+        release_free_heap()
 
 
 def check_jobs(jobs: int | None) -> int:

@@ -38,7 +38,7 @@ from gymnasium.vector.utils import batch_space
 
 from ..camera import GimbalCamera
 from ..coverage import TriangleVisibility
-from ..env import observation_space, start_state
+from ..env import grow_to_start, observation_space, start_state
 from ..env_config import EnvConfig
 from ..randomization import RandomizationDraw, noisy_state
 from ..randomization import draw as draw_randomization
@@ -146,7 +146,9 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                                                   stop_threshold=cfg.reference_stop))
         self.reference = BatchedReference(ref, n)
         self.time_limit = cfg.time_limit_s or (1.5 * ref.nominal_duration + 30.0)
-        self._vol_lo, self._vol_hi = mission.working_volume(cfg.working_margin)
+        lo, hi = mission.working_volume(cfg.working_margin)
+        self._vol_base = (lo, hi)
+        self._vol_lo, self._vol_hi = np.tile(lo, (n, 1)), np.tile(hi, (n, 1))   # per drone: its start
 
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.single_observation_space = observation_space()
@@ -311,6 +313,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             self.sim.set_plant(i, r.plant, r.thrust_scale)
             self._noise_rngs[i] = np.random.default_rng(r.noise_seed)
             self._commands[i] = deque([self.scaling.to_command(self._hover)] * r.latency_steps)
+        self._vol_lo[i], self._vol_hi[i] = grow_to_start(*self._vol_base, state[0:3], cfg.working_margin)
         self.sim.reset_drone(i, state)
         self._reset_state[i] = state
         self.counts[i] = 0
