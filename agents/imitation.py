@@ -131,17 +131,68 @@ def check_dataset_matches(meta: Mapping[str, Any], env) -> None:
             raise ValueError(f"dataset was recorded with {name} {got!r}, the recipe's environment has {have!r}")
 
 
+def new_clone_model(recipe, task: str, X: np.ndarray, seed: int):
+    """``(model, vecnormalize, venv)``: a fresh PPO model of the recipe's network (seeded) on a
+    one-drone vector env, its observation normalisation set to the statistics of the features
+    ``X`` (so a saved clone deploys with them). Close ``venv`` when done."""
+    import torch
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from .policy import algo_class
+    from .training import _policy_kwargs, make_vec_env
+
+    torch.manual_seed(seed)
+    torch.set_num_threads(max(1, recipe.torch_threads))
+    venv = make_vec_env(task, recipe.env, recipe.spec, 1, backend="vector", shaping=recipe.shaping,
+                        variants=recipe.env_variants, weights=recipe.env_variant_weights, seed=seed)
+    norm = dict(recipe.normalize)
+    vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
+                           clip_obs=float(norm.get("clip_obs", 10.0)), clip_reward=float(norm.get("clip_reward", 10.0)),
+                           gamma=float(recipe.algo_kwargs.get("gamma", 0.99)))
+    vecnorm.obs_rms.mean = X.mean(axis=0).astype(np.float64)
+    vecnorm.obs_rms.var = X.var(axis=0).astype(np.float64) + 1e-8
+    vecnorm.obs_rms.count = float(len(X))
+    kw = {k: v for k, v in recipe.algo_kwargs.items() if k != "learning_rate_final"}
+    model = algo_class("ppo")("MlpPolicy", vecnorm, seed=seed, device="cpu",
+                              policy_kwargs=_policy_kwargs(recipe), **kw)
+    return model, vecnorm, venv
+
+
+def normalize_features(vecnorm, X: np.ndarray) -> np.ndarray:
+    """Raw features as the network sees them (VecNormalize's observation statistics and clip)."""
+    return np.clip((X - vecnorm.obs_rms.mean) / np.sqrt(vecnorm.obs_rms.var + vecnorm.epsilon),
+                   -vecnorm.clip_obs, vecnorm.clip_obs).astype(np.float32)
+
+
+def actor_parameters(policy) -> list:
+    """The parameters that shape the policy's mean action (not the critic's, not ``log_std``)."""
+    return [p for n_, p in policy.named_parameters() if not n_.startswith(("value_net", "mlp_extractor.value_net"))
+            and n_ != "log_std"]
+
+
+def policy_mean_action(policy, x):
+    """The deterministic action of an SB3 actor-critic policy for normalised features ``x``
+    (a torch tensor), differentiable."""
+    latent_pi, _ = policy.mlp_extractor(policy.extract_features(x, policy.pi_features_extractor))
+    return policy.action_net(latent_pi)
+
+
+def label_weights(Y: np.ndarray):
+    """Per-component loss weights, the inverse variance of the labels ``Y`` (see behaviour_clone)."""
+    import torch
+    return torch.as_tensor(1.0 / np.maximum(Y.var(axis=0), 1e-8), dtype=torch.float32)
+
+
 def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "full",
                     config: BCConfig | None = None, progress: bool = True, evaluate: bool = True) -> dict[str, Any]:
     """Clone the dataset's expert into the recipe's policy; writes ``out/model.*`` and
     ``out/bc_summary.json`` (and, with ``evaluate``, ``out/evaluations.json``: the clone flown on
     the recipe's evaluation mission, as training runs record theirs) and returns the summary."""
     import torch
-    from stable_baselines3.common.vec_env import VecNormalize
     from tqdm import tqdm
 
-    from .policy import algo_class, env_interface, save_agent
-    from .training import _policy_kwargs, make_raw_env, make_vec_env
+    from .policy import env_interface, save_agent
+    from .training import make_raw_env
 
     cfg = config if config is not None else BCConfig()
     if recipe.algo != "ppo":
@@ -157,40 +208,23 @@ def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: 
         t0 = time.perf_counter()
         X, Y = dataset_arrays(dataset, recipe.spec, u.scaling, standoff=u.config.standoff, dt=u.dt)
         prep_s = time.perf_counter() - t0
-        torch.manual_seed(cfg.seed)
-        torch.set_num_threads(max(1, recipe.torch_threads))
-        venv = make_vec_env(task, recipe.env, recipe.spec, 1, backend="vector", shaping=recipe.shaping,
-                            variants=recipe.env_variants, weights=recipe.env_variant_weights, seed=cfg.seed)
-        norm = dict(recipe.normalize)
-        vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
-                               clip_obs=float(norm.get("clip_obs", 10.0)), clip_reward=float(norm.get("clip_reward", 10.0)),
-                               gamma=float(recipe.algo_kwargs.get("gamma", 0.99)))
-        vecnorm.obs_rms.mean = X.mean(axis=0).astype(np.float64)
-        vecnorm.obs_rms.var = X.var(axis=0).astype(np.float64) + 1e-8
-        vecnorm.obs_rms.count = float(len(X))
-        kw = {k: v for k, v in recipe.algo_kwargs.items() if k != "learning_rate_final"}
-        model = algo_class("ppo")("MlpPolicy", vecnorm, seed=cfg.seed, device="cpu",
-                                  policy_kwargs=_policy_kwargs(recipe), **kw)
-        Xn = np.clip((X - vecnorm.obs_rms.mean) / np.sqrt(vecnorm.obs_rms.var + vecnorm.epsilon),
-                     -vecnorm.clip_obs, vecnorm.clip_obs).astype(np.float32)
+        model, vecnorm, venv = new_clone_model(recipe, task, X, cfg.seed)
+        Xn = normalize_features(vecnorm, X)
         rng = np.random.default_rng(cfg.seed)
         perm = rng.permutation(len(Xn))
         n_val = int(cfg.validation_fraction * len(Xn))
         val, tr = perm[:n_val], perm[n_val:]
         Xt, Yt = torch.as_tensor(Xn), torch.as_tensor(Y)
         policy = model.policy
-        params = [p for n_, p in policy.named_parameters() if not n_.startswith(("value_net", "mlp_extractor.value_net"))
-                  and n_ != "log_std"]
-        opt = torch.optim.Adam(params, lr=cfg.learning_rate)
+        opt = torch.optim.Adam(actor_parameters(policy), lr=cfg.learning_rate)
         sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, cfg.epochs)
         # Each action component is weighted by the inverse of its variance in the data: the expert's
         # roll-rate commands vary ~5x less than its thrust, and a plain MSE fits them poorly (measured:
         # validation RMSE 0.74 of the roll-rate spread against 0.22 with the weighting).
-        w = torch.as_tensor(1.0 / np.maximum(Y.var(axis=0), 1e-8), dtype=torch.float32)
+        w = label_weights(Y)
 
         def mean_action(x: "torch.Tensor") -> "torch.Tensor":
-            latent_pi, _ = policy.mlp_extractor(policy.extract_features(x, policy.pi_features_extractor))
-            return policy.action_net(latent_pi)
+            return policy_mean_action(policy, x)
 
         history = []
         t1 = time.perf_counter()
