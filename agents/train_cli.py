@@ -17,9 +17,13 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
         prog=prog, description="Train a stable-baselines3 agent on a wind-turbine inspection task. Steps are "
         "simulator control steps (100 Hz); outputs (model, checkpoints, evaluations, TensorBoard logs, "
         "learning curve, summary.json) go to --out.")
-    p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}, or bc (behaviour cloning of "
-                   "a demonstration dataset into a PPO policy; needs --dataset)")
-    p.add_argument("--dataset", default=None, help="bc: a dataset folder written by wt-inspect demos")
+    p.add_argument("--algo", required=True, help=f"algorithm: {', '.join(ALGOS)}, bc (behaviour cloning of "
+                   "a demonstration dataset into a PPO policy; needs --dataset), or dagger (bc, then DAgger rounds "
+                   "labelled by the expert flying in shadow; needs --dataset)")
+    p.add_argument("--dataset", default=None, help="bc, dagger: a dataset folder written by wt-inspect demos")
+    p.add_argument("--dagger-options", default=None,
+                   help="dagger: JSON object (or FILE.json) of agents.dagger.DAggerConfig fields, e.g. "
+                        "'{\"rounds\": 8, \"episodes_per_round\": 4}' (recipe default agents/recipes/dagger_full.json)")
     p.add_argument("--bc-epochs", type=int, default=30, help="bc: passes over the dataset (default 30)")
     p.add_argument("--task", default=None, help=f"task: {', '.join(TASKS)} (default surface; full for bc)")
     p.add_argument("--timesteps", type=int, default=None, help="simulator steps to train in this run (RL)")
@@ -58,6 +62,12 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
         return 2
     if args.algo == "bc":
         return _clone(args, prog)
+    if args.algo == "dagger":
+        from .dagger import cli as dagger_cli
+        return dagger_cli(args, prog)
+    if args.dagger_options is not None:
+        print(f"{prog}: error: --dagger-options is for --algo dagger only", file=sys.stderr)
+        return 2
     if args.timesteps is None:
         print(f"{prog}: error: --timesteps is required for --algo {args.algo}", file=sys.stderr)
         return 2
@@ -106,8 +116,9 @@ def _seeds(args, prog: str) -> int:
         when = f"at {r['reached_at_env_steps']} steps ({r['reached_at_wall_s']:.0f} s)" if r["reached_target"] else "not reached"
         print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, SM {f.get('safety_sm', float('nan')):.3f}, "
               f"CM {f.get('centering_cm', float('nan')):.3f}; target {when}")
-    print(f"{doc['n_reached']} of {len(doc['seeds'])} seeds reached the target; {args.out}/seeds.json, "
-          f"{args.out}/learning_curves_seeds.{args.figure_format}")
+    for name, t in doc["targets"].items():
+        print(f"{t['n_reached']} of {len(doc['seeds'])} seeds reached the {name} target {t['target']}")
+    print(f"{args.out}/seeds.json, {args.out}/learning_curves_seeds.{args.figure_format}")
     return 0
 
 
