@@ -457,6 +457,9 @@ class RTIPolicy(Policy):
         self._ahead = False            # a QP for the next observation is prepared
         self.last_stats: SolveStats = SolveStats()
         self.last_command: np.ndarray | None = None
+        self._last_solve: tuple[np.ndarray, np.ndarray] | None = None   # (model state, params) of the last command
+        self._prepared_params: np.ndarray | None = None
+        self._prediction_offset: np.ndarray | None = None   # shadow mode: see note_applied_action
 
     # -- what a subclass provides -----------------------------------------------------------------
     def build_ocp(self, config: Any) -> OCP:
@@ -502,6 +505,9 @@ class RTIPolicy(Policy):
         self._ahead = False
         self.last_stats = SolveStats()
         self.last_command = None
+        self._last_solve = None
+        self._prepared_params = None
+        self._prediction_offset = None
 
     def set_weights(self, weights: Any) -> None:
         """Switch weights: a weight object of the config's class or a set name. The RTI solver
@@ -531,6 +537,7 @@ class RTIPolicy(Policy):
         """One full real-time iteration (prepare, feedback, shift) or one IPOPT solve for an
         aligned drone state."""
         xm = self.model_state(state)
+        self._last_solve = (xm, params)
         solver = self.solver
         if isinstance(solver, RTISolver):
             if not solver.initialized:
@@ -543,6 +550,7 @@ class RTIPolicy(Policy):
         return self._finish_step(u)
 
     def _finish_step(self, u: np.ndarray) -> np.ndarray:
+        self._prediction_offset = None      # a new plan: its own prediction holds until told otherwise
         for _ in range(self.shifts_per_step):
             self.solver.shift()
         self.last_stats = self.solver.last_stats
@@ -583,7 +591,36 @@ class RTIPolicy(Policy):
         None before the first step and when the control period is shorter than a stage."""
         if self.last_command is None or not self.shifts_per_step:
             return None
+        if self._prediction_offset is not None:
+            return self.solver.iterate[:NX] + self._prediction_offset
         return self.solver.iterate[:NX]
+
+    def note_applied_action(self, action: Any) -> None:
+        """Tell the controller which normalised env action was applied after its last :meth:`act`.
+
+        Why: in *shadow* mode (the controller labels the states another policy flies into, as in
+        DAgger) the executed command is not the controller's own, but :attr:`predicted_state` - what
+        the disturbance observer of :meth:`on_measurement` compares the next measurement with, and
+        where ``prepare_ahead`` linearises - is the plan's, which assumes its own command. This
+        shifts that prediction by the model's answer to the difference: ``F(x, applied) - F(x, own)``
+        over the control period (``F`` the OCP's dynamics with the parameters of the last solve,
+        ``x`` the measured model state, both commands as the env executes them, saturated at the
+        bounds). So the observer keeps seeing only the unmodelled acceleration whatever flies.
+        With ``action`` equal to the controller's own action the shift is exactly zero and nothing
+        changes; call it after every :meth:`act` whose command may not have been applied (a
+        prepared-ahead linearisation has already used the unshifted prediction)."""
+        if self.last_command is None or self._last_solve is None or not self.shifts_per_step:
+            return
+        applied = self.scaling.to_command(np.asarray(action, dtype=np.float64))
+        own = self.scaling.to_command(self.scaling.to_action(self.last_command))
+        x, params = self._last_solve
+        f = self.base_ocp.dynamics
+        xa, xo = x, x
+        for _ in range(self.shifts_per_step):
+            xa = np.asarray(f(xa, applied, params), dtype=float).ravel()
+            xo = np.asarray(f(xo, own, params), dtype=float).ravel()
+        offset = (xa - xo)[:NX]
+        self._prediction_offset = offset if np.any(offset) else None
 
     def command_for(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
         """Physical command [p, q, r, T] for a drone state and the OCP's parameters directly
@@ -601,6 +638,7 @@ class RTIPolicy(Policy):
             self.obstacles.update(o["point"])
         if self._ahead:                      # only the feedback QP stands between obs and command
             u = self.solver.feedback(self.model_state(x))
+            self._last_solve = (self.model_state(x), self._prepared_params)
             self._ahead = False
             latency = (time.perf_counter() - t0) * 1e3
             u = self._finish_step(u)
@@ -622,8 +660,8 @@ class RTIPolicy(Policy):
         nxt = {**obs, "point": obs["point"] + obs["point_velocity"] * self.config.control_dt,
                "position": predicted[0:3], "velocity_body": predicted[3:6], "quaternion": predicted[6:10]}
         nxy = self.normal.update(nxt["normal"], predicted[0:3], nxt["point"])
-        self.solver.prepare(self._with_clearance(self.parameters(nxt, predicted, nxy),
-                                                 self.model_state(predicted)))
+        self._prepared_params = self.parameters(nxt, predicted, nxy)
+        self.solver.prepare(self._with_clearance(self._prepared_params, self.model_state(predicted)))
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
