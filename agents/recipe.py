@@ -33,6 +33,22 @@ def _check_env_options(options: Mapping[str, Any]) -> None:
     make_wind(cfg.wind)
 
 
+TARGET_METRICS: tuple[str, ...] = ("coverage", "safety_sm", "centering_cm")
+
+
+def check_target(target: Any, name: str = "recipe target") -> dict[str, float]:
+    """``{metric: threshold}`` over :data:`TARGET_METRICS`, each a fraction in (0, 1]."""
+    if not isinstance(target, Mapping) or not target:
+        raise ValueError(f"{name} must be a non-empty dict of metric thresholds, got {target!r}")
+    check_unknown_options(name, target.keys(), TARGET_METRICS)
+    out = {}
+    for k, v in target.items():
+        if isinstance(v, (bool, str)) or not isinstance(v, (int, float)) or not 0.0 < v <= 1.0:
+            raise ValueError(f"{name} {k} must be a fraction in (0, 1], got {v!r}")
+        out[k] = float(v)
+    return out
+
+
 def _positive_int(name: str, value: Any) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -53,6 +69,10 @@ class Recipe:
         ``activation_fn`` (a name from ``ACTIVATIONS``) and the algorithm's other policy options.
     eval_every_env_steps / eval_episodes / checkpoint_every_env_steps: in simulator control steps.
     torch_threads: intra-op threads of the learner (1 leaves the other core to the env workers).
+    target: the recipe's own acceptance thresholds on the periodic evaluation's means (keys of
+        ``TARGET_METRICS``, fractions in (0, 1]) - a stage of a curriculum is judged by what it is
+        for (a surface stage by coverage and SM); the seeds report shows it beside the full-mission
+        target of :data:`agents.seeds.TARGET`. None: that target only.
     """
 
     algo: str = "ppo"
@@ -70,6 +90,7 @@ class Recipe:
     eval_episodes: int = 2
     checkpoint_every_env_steps: int = 200_000
     torch_threads: int = 1
+    target: Any = None
 
     def __post_init__(self) -> None:
         check_choice("algorithm", self.algo, ALGOS)
@@ -121,6 +142,8 @@ class Recipe:
             check_positive("recipe algo_kwargs learning_rate_final", self.algo_kwargs["learning_rate_final"])
         for name in ("eval_every_env_steps", "eval_episodes", "checkpoint_every_env_steps", "torch_threads"):
             _positive_int(f"recipe {name}", getattr(self, name))
+        if self.target is not None:
+            object.__setattr__(self, "target", check_target(self.target))
 
     @property
     def spec(self) -> AgentSpec:

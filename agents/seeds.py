@@ -22,7 +22,21 @@ import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
 
-TARGET = {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995}
+TARGET = {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995}   # the full-mission target of the issue
+
+
+def report_targets(recipe_target: Mapping[str, float] | None) -> dict[str, dict[str, float]]:
+    """The targets a seeds report judges: the recipe's own (if it has one) first, then ``mission``
+    (:data:`TARGET`)."""
+    out = {"recipe": dict(recipe_target)} if recipe_target else {}
+    out["mission"] = dict(TARGET)
+    return out
+
+
+def _recipe_target(train_kwargs: Mapping[str, Any]) -> dict[str, float] | None:
+    from .recipe import default_recipe_path, load_recipe
+    path = train_kwargs.get("recipe") or default_recipe_path(train_kwargs.get("algo", "ppo"))
+    return load_recipe(path).target
 
 
 def parse_seeds(text: str) -> list[int]:
@@ -79,10 +93,11 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     else:
         for s in todo:
             _one_seed(train_kwargs, s, str(out / f"seed_{s}"), progress)
-    doc = seed_report(out, seeds)
+    doc = seed_report(out, seeds, report_targets(_recipe_target(train_kwargs)))
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
-        plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"))
+        plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
+                         targets=report_targets(_recipe_target(train_kwargs)))
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc
@@ -100,7 +115,7 @@ def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, r
         if not (run / "bc_summary.json").is_file():
             behaviour_clone(dataset, run, recipe=recipe, task=task, config=BCConfig(epochs=epochs, seed=s),
                             progress=progress)
-    doc = seed_report(out, seeds)
+    doc = seed_report(out, seeds, report_targets(recipe.target))
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     return doc
 
@@ -115,23 +130,38 @@ def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> b
     return all(m[k] >= v for k, v in target.items())
 
 
-def seed_report(out: Path, seeds: Sequence[int], target: Mapping[str, float] = TARGET) -> dict[str, Any]:
-    """Per seed: final evaluation, and the first evaluation that met ``target`` (if any)."""
+def seed_report(out: Path, seeds: Sequence[int],
+                targets: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
+    """Per seed: final evaluation, and for each of ``targets`` (name -> thresholds; default
+    ``{"mission": TARGET}``) the first evaluation that met it. The first target is the headline:
+    its result is also given as ``target`` / ``reached_target`` / ``n_reached``."""
+    targets = dict(targets or {"mission": TARGET})
     rows = []
     for s in seeds:
         evals = _evaluations(out / f"seed_{s}")
-        hit = next((e for e in evals if reached(e, target)), None)
-        rows.append({"seed": s, "evaluations": len(evals),
-                     "final": evals[-1]["mean"] if evals else None,
-                     "reached_target": hit is not None,
-                     "reached_at_env_steps": None if hit is None else hit["env_steps"],
-                     "reached_at_wall_s": None if hit is None else hit["wall_time_s"]})
-    return {"target": dict(target), "seeds": rows, "n_reached": sum(r["reached_target"] for r in rows)}
+        row: dict[str, Any] = {"seed": s, "evaluations": len(evals), "final": evals[-1]["mean"] if evals else None,
+                               "targets": {}}
+        for name, target in targets.items():
+            hit = next((e for e in evals if reached(e, target)), None)
+            row["targets"][name] = {"reached": hit is not None,
+                                    "env_steps": None if hit is None else hit["env_steps"],
+                                    "wall_s": None if hit is None else hit["wall_time_s"]}
+        head = row["targets"][next(iter(targets))]
+        row.update(reached_target=head["reached"], reached_at_env_steps=head["env_steps"],
+                   reached_at_wall_s=head["wall_s"])
+        rows.append(row)
+    summary = {name: {"target": dict(t), "n_reached": sum(r["targets"][name]["reached"] for r in rows)}
+               for name, t in targets.items()}
+    first = next(iter(targets))
+    return {"target": dict(targets[first]), "target_name": first, "seeds": rows,
+            "n_reached": summary[first]["n_reached"], "targets": summary}
 
 
-def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png") -> Path:
-    """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std, as
-    ``fmt`` (png, pdf, svg; ``path``'s suffix is replaced by it). Returns the written path."""
+def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png",
+                     targets: Mapping[str, Mapping[str, float]] | None = None) -> Path:
+    """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std, with
+    each target's thresholds as dashed lines, as ``fmt`` (png, pdf, svg; ``path``'s suffix is
+    replaced by it). Returns the written path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -155,11 +185,17 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
             m, sd = ys.mean(0), ys.std(0)
             ax.plot(grid, m, color="k", lw=2, label="mean over seeds")
             ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
-    axes[0].axhline(TARGET["coverage"], ls="--", color="g", lw=1, label="target 0.99")
-    axes[1].axhline(TARGET["centering_cm"], ls="--", color="g", lw=1)
+    for (name, t), color in zip((targets or {"mission": TARGET}).items(), ("g", "tab:orange", "tab:purple")):
+        score_min = min((t[k] for k in ("coverage", "safety_sm") if k in t), default=None)
+        if score_min is not None:
+            axes[0].axhline(score_min, ls="--", color=color, lw=1, label=f"{name} target {score_min:g}")
+        if "centering_cm" in t:
+            axes[1].axhline(t["centering_cm"], ls="--", color=color, lw=1, label=f"{name} target {t['centering_cm']:g}")
     axes[0].set(xlabel="env steps", ylabel="min(coverage, SM)", title="evaluation score")
     axes[1].set(xlabel="env steps", ylabel="CM", title="centering")
     axes[0].legend(fontsize=7)
+    if axes[1].get_legend_handles_labels()[0]:
+        axes[1].legend(fontsize=7)
     fig.tight_layout()
     from wt_inspect_env.figure_io import save_figure
     try:

@@ -116,8 +116,9 @@ def _seeds(args, prog: str) -> int:
         when = f"at {r['reached_at_env_steps']} steps ({r['reached_at_wall_s']:.0f} s)" if r["reached_target"] else "not reached"
         print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, SM {f.get('safety_sm', float('nan')):.3f}, "
               f"CM {f.get('centering_cm', float('nan')):.3f}; target {when}")
-    print(f"{doc['n_reached']} of {len(doc['seeds'])} seeds reached the target; {args.out}/seeds.json, "
-          f"{args.out}/learning_curves_seeds.{args.figure_format}")
+    for name, t in doc["targets"].items():
+        print(f"{t['n_reached']} of {len(doc['seeds'])} seeds reached the {name} target {t['target']}")
+    print(f"{args.out}/seeds.json, {args.out}/learning_curves_seeds.{args.figure_format}")
     return 0
 
 

@@ -45,9 +45,41 @@ def test_local_seeds_train_report_and_skip_finished_runs(tmp_path):
     assert (tmp_path / "out" / "seed_0" / "summary.json").stat().st_mtime_ns == stamp
     assert doc2["seeds"] == doc["seeds"]
     # the report finds when a seed met a target it can meet
-    low = seed_report(tmp_path / "out", [0, 1], target={"coverage": 0.0, "safety_sm": 0.0, "centering_cm": -1.0})
+    low = seed_report(tmp_path / "out", [0, 1], {"low": {"coverage": 0.0, "safety_sm": 0.0, "centering_cm": -1.0}})
     assert low["n_reached"] == 2 and low["seeds"][0]["reached_at_env_steps"] > 0
     assert not reached({"mean": {"coverage": 0.98, "safety_sm": 1.0, "centering_cm": 1.0}})
+
+
+def _fake_evaluations(run, entries):
+    run.mkdir(parents=True)
+    (run / "evaluations.json").write_text(json.dumps(
+        [{"env_steps": n, "wall_time_s": n / 1000.0, "mean": dict(zip(("coverage", "safety_sm", "centering_cm"), m))}
+         for n, m in entries]))
+
+
+def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_beside_it(tmp_path):
+    from agents.seeds import TARGET, report_targets
+    _fake_evaluations(tmp_path / "seed_0", [(1000, (0.95, 0.92, 0.98)), (2000, (1.0, 1.0, 0.996))])
+    _fake_evaluations(tmp_path / "seed_1", [(1000, (0.95, 0.85, 0.98)), (2000, (0.99, 0.91, 0.99))])
+    targets = report_targets({"coverage": 0.9, "safety_sm": 0.9})
+    assert list(targets) == ["recipe", "mission"] and targets["mission"] == TARGET
+    doc = seed_report(tmp_path, [0, 1], targets)
+    assert doc["target_name"] == "recipe" and doc["n_reached"] == 2
+    assert [r["reached_at_env_steps"] for r in doc["seeds"]] == [1000, 2000]
+    assert doc["targets"]["mission"]["n_reached"] == 1
+    assert doc["seeds"][0]["targets"]["mission"] == {"reached": True, "env_steps": 2000, "wall_s": 2.0}
+    assert doc["seeds"][1]["targets"]["mission"]["reached"] is False
+    assert list(report_targets(None)) == ["mission"]
+
+
+@pytest.mark.parametrize("bad, match", [({"coverage": 1.5}, "recipe target coverage must be a fraction"),
+                                        ({"coverage": "0.9"}, "recipe target coverage must be a fraction"),
+                                        ({"speed": 0.9}, "speed"), ({}, "non-empty dict")])
+def test_recipe_target_is_checked(bad, match):
+    data = json.loads(default_recipe_path("ppo").read_text())
+    with pytest.raises(ValueError, match=match):
+        Recipe.from_dict({**data, "target": bad})
+    assert Recipe.from_dict({**data, "target": {"coverage": 0.9}}).target == {"coverage": 0.9}
 
 
 @pytest.mark.slow
