@@ -55,7 +55,8 @@ TERMINAL_RESIDUAL_NAMES = STAGE_RESIDUAL_NAMES[:10]
 @dataclass(frozen=True)
 class NMPCWeights(LSQWeights):
     """Diagonal least-squares weights of the NMPC baseline (defaults: the authors' file, see the
-    module docstring). ``heading`` weighs both rows of the heading residual."""
+    module docstring). ``heading`` weighs both rows of the heading residual. Weights at the paper's
+    stand-off and drone, scaled for the instance's (:meth:`~controllers.rti_policy.LSQWeights.scaled`)."""
 
     position: tuple[float, ...] = (40.0, 40.0, 50.0)
     velocity: tuple[float, ...] = (3.0, 3.0, 5.0)
@@ -65,6 +66,8 @@ class NMPCWeights(LSQWeights):
 
     TERMINAL: ClassVar = (("position", 3), ("velocity", 3), ("tilt", 2), ("heading", 2))
     STAGE: ClassVar = TERMINAL + (("inputs", 4),)
+    UNITS: ClassVar = {"position": "length", "velocity": "speed", "tilt": "1", "heading": "1",
+                       "inputs": ("rate", "rate", "rate", "thrust")}
 
     @classmethod
     def authors(cls) -> "NMPCWeights":

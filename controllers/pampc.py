@@ -75,7 +75,9 @@ TERMINAL_RESIDUAL_NAMES = STAGE_RESIDUAL_NAMES[:12]
 @dataclass(frozen=True)
 class PAMPCWeights(LSQWeights):
     """Diagonal least-squares weights of the PAMPC (defaults: the authors' file, see the module
-    docstring). ``perception`` weighs the normalised image coordinates (x right, y down)."""
+    docstring). ``perception`` weighs the normalised image coordinates (x right, y down), which are
+    dimensionless. Weights at the paper's stand-off and drone, scaled for the instance's
+    (:meth:`~controllers.rti_policy.LSQWeights.scaled`)."""
 
     position: tuple[float, ...] = (30.0, 30.0, 40.0)
     velocity: tuple[float, ...] = (3.0, 3.0, 3.0)
@@ -86,6 +88,8 @@ class PAMPCWeights(LSQWeights):
 
     TERMINAL: ClassVar = (("position", 3), ("velocity", 3), ("tilt", 2), ("heading", 2), ("perception", 2))
     STAGE: ClassVar = TERMINAL + (("inputs", 4),)
+    UNITS: ClassVar = {"position": "length", "velocity": "speed", "tilt": "1", "heading": "1",
+                       "perception": "1", "inputs": ("rate", "rate", "rate", "thrust")}
 
     @classmethod
     def authors(cls) -> "PAMPCWeights":

@@ -53,10 +53,35 @@ from far starts were so badly conditioned that HPIPM stopped at its iteration li
 step (``wt-inspect campaign``; results/campaign has the counts).
 ``clearance=False`` or no ``obstacles`` builds the OCP without any of it, exactly
 as before.
+
+Weight scaling. Every weight set was tuned at the paper's conditions (d_ref 7 m, the Matrice-100-like
+drone), and a least-squares weight is only meaningful against the size of its residual: the same
+0.1 m error is 1.4 % of a 7 m stand-off but 20 % of a 0.5 m one, and the same thrust deviation in
+newtons is a larger share of a light drone's weight. So the weights given (a set, a file, a tuning)
+are read as weights at those *reference* conditions, and :meth:`LSQWeights.scaled` converts them
+for the instance's stand-off and drone: each block declares the unit of its residual
+(:attr:`LSQWeights.UNITS`) and is multiplied by (reference size / size)^2, the sizes being
+(:class:`ResidualScales`)
+
+* length: d_ref - the geometry of the inspection scales with the stand-off;
+* speed: sqrt(g d_ref), and body rate: sqrt(g / d_ref) - Froude scaling. A multirotor accelerates
+  horizontally by tilting its thrust, so its accelerations are fractions of g at any size; a
+  manoeuvre over a stand-off L scaled by s at the same tilt angles then takes sqrt(s) the time, at
+  sqrt(s) the speed and 1/sqrt(s) the body rates. With these sizes the converged answer of a
+  geometrically scaled problem (stage length scaled by sqrt(s)) is exactly the scaled answer
+  (tests/test_weight_scaling.py), so the paper's damping and trade-offs carry over to any size;
+* thrust: the drone's hover thrust m g - thrust deviations matter relative to the weight held;
+* dimensionless residuals (attitude, heading, image coordinates): unchanged.
+
+The clearance slack is a length too, so its prices scale with it (L2 by the squared length ratio,
+L1 by the ratio; :attr:`MPCConfig.clearance_prices`). At the reference conditions every factor is
+exactly 1, so the weights and every result made before the rule are unchanged;
+``scale_weights=False`` applies the weights as given at any stand-off and drone.
 """
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, Mapping
@@ -69,7 +94,7 @@ from wt_inspect_env.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
 from wt_inspect_env.geometry import HorizontalNormal
 from wt_inspect_env.policy import Policy, check_observation, state_from_observation
 from wt_inspect_env.proximity import TurbineProximity
-from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_choice, check_field_types, check_positive
 
@@ -79,6 +104,9 @@ BACKENDS = ("rti", "ipopt")
 N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
 DEFAULT_D_MIN_RATIO = 3.0 / 7.0   # d_min / d_ref: 3 m at the paper's 7 m stand-off
 SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
+REFERENCE_D_REF = 7.0         # [m] the stand-off every weight set was tuned at (the paper's)
+REFERENCE_DRONE = "matrice100"  # the drone they were tuned for
+WEIGHT_UNITS = ("1", "length", "speed", "rate", "thrust")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -134,6 +162,38 @@ def warm_start_shifts(control_dt: float, dt: float) -> int:
 # ------------------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
+class ResidualScales:
+    """The characteristic size of each kind of residual at one stand-off and drone (the weight
+    scaling rule of the module docstring): ``length`` [m], ``speed`` [m/s], ``rate`` [rad/s],
+    ``thrust`` [N]."""
+
+    length: float
+    speed: float
+    rate: float
+    thrust: float
+
+    @classmethod
+    def of(cls, d_ref: float, params: QuadrotorParams) -> "ResidualScales":
+        """Lengths by the stand-off, speeds and rates by Froude scaling of it, thrust by the
+        drone's hover thrust."""
+        d = check_positive("d_ref", d_ref)
+        return cls(length=d, speed=math.sqrt(GRAVITY * d), rate=math.sqrt(GRAVITY / d), thrust=params.weight)
+
+    @classmethod
+    def reference(cls) -> "ResidualScales":
+        """The sizes at the conditions the weight sets were tuned at (the paper's)."""
+        return cls.of(REFERENCE_D_REF, get_preset(REFERENCE_DRONE))
+
+    def factor(self, unit: str, reference: "ResidualScales") -> float:
+        """The weight factor (reference size / size)^2 of a residual of ``unit``; exactly 1 for
+        equal sizes."""
+        check_choice("weight unit", unit, WEIGHT_UNITS)
+        if unit == "1":
+            return 1.0
+        return (getattr(reference, unit) / getattr(self, unit)) ** 2
+
+
+@dataclass(frozen=True)
 class LSQWeights:
     """Diagonal least-squares weights in named blocks (the one shape of every controller).
 
@@ -143,6 +203,8 @@ class LSQWeights:
     residuals. :meth:`terminal_vector` is ``terminal_factor`` times the terminal layout. The block
     named ``INPUTS`` must be positive: Gauss-Newton needs a positive-definite input block
     (R + B^T P B > 0 in HPIPM's Riccati recursion), a zero input weight can leave the QP singular.
+    ``UNITS`` names each block's residual unit (one of :data:`WEIGHT_UNITS`, or a tuple of them per
+    row) for :meth:`scaled`.
     """
 
     terminal_factor: float = 1.5
@@ -150,6 +212,7 @@ class LSQWeights:
     STAGE: ClassVar[tuple[tuple[str, int], ...]] = ()
     TERMINAL: ClassVar[tuple[tuple[str, int], ...]] = ()
     INPUTS: ClassVar[str] = "inputs"
+    UNITS: ClassVar[Mapping[str, str | tuple[str, ...]]] = {}
 
     def __post_init__(self) -> None:
         check_field_types(self, "weights.")
@@ -222,6 +285,36 @@ class LSQWeights:
         """Every field as plain JSON data (lists for per-row blocks): what :meth:`load` reads."""
         return {f.name: (list(v) if isinstance(v := getattr(self, f.name), tuple) else v) for f in fields(self)}
 
+    def scaled(self, scales: ResidualScales, reference: ResidualScales | None = None) -> "LSQWeights":
+        """These weights, read as weights at the ``reference`` conditions (default: the paper's,
+        :meth:`ResidualScales.reference`), for residuals of the sizes ``scales``: each block times
+        (reference size / size)^2 of its unit (module docstring). Equal sizes give these weights
+        exactly (every factor is 1.0; a class without ``UNITS`` is usable there, and refused with
+        the missing block named elsewhere - an unscaled block would silently change its weight
+        relative to the others)."""
+        ref = ResidualScales.reference() if reference is None else reference
+        if scales == ref:
+            return self
+        changes: dict[str, Any] = {}
+        for f in fields(self):
+            if f.name == "terminal_factor":
+                continue
+            if f.name not in self.UNITS:
+                raise ValueError(f"{type(self).__name__}.UNITS has no unit for weights.{f.name} (needed to "
+                                 f"scale the weights away from the reference conditions)")
+            unit, value = self.UNITS[f.name], getattr(self, f.name)
+            if isinstance(value, tuple):
+                units = (unit,) * len(value) if isinstance(unit, str) else tuple(unit)
+                if len(units) != len(value):
+                    raise ValueError(f"{type(self).__name__}.UNITS[{f.name!r}] must have {len(value)} "
+                                     f"entries, got {unit!r}")
+                changes[f.name] = tuple(v * scales.factor(u, ref) for v, u in zip(value, units))
+            else:
+                if not isinstance(unit, str):
+                    raise ValueError(f"{type(self).__name__}.UNITS[{f.name!r}] must be one unit, got {unit!r}")
+                changes[f.name] = value * scales.factor(unit, ref)
+        return dataclasses.replace(self, **changes)
+
     def _vector(self, layout: tuple[tuple[str, int], ...]) -> np.ndarray:
         parts = []
         for name, n in layout:
@@ -267,7 +360,10 @@ class MPCConfig:
     only and a Gauss-Newton Hessian with positive input weights, so they are strictly convex and
     always feasible (failed or non-finite QPs are still caught by the RTI fallback). ``backend``
     ``"rti"`` is the real-time iteration, ``"ipopt"`` solves every step to convergence (the slow
-    reference). ``prepare_ahead``: see the module docstring."""
+    reference). ``prepare_ahead``: see the module docstring. ``scale_weights`` (default on): the
+    weights are the reference conditions' and the solver gets them scaled for ``d_ref`` and
+    ``params`` (:meth:`solver_weights`, the module docstring's weight scaling), the clearance prices
+    likewise (:attr:`clearance_prices`); off, both apply as given."""
 
     WEIGHTS: ClassVar[type] = LSQWeights
     WEIGHT_SETS: ClassVar[Mapping[str, Any]] = {}
@@ -291,6 +387,7 @@ class MPCConfig:
     clearance_queries: int = 4
     clearance_refresh: float | None = None
     clearance_backoff: float | None = None
+    scale_weights: bool = True
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -351,6 +448,27 @@ class MPCConfig:
         return cls.WEIGHT_SETS[default] if isinstance(default, str) and default in cls.WEIGHT_SETS else cls.WEIGHTS()
 
     @property
+    def residual_scales(self) -> ResidualScales:
+        """The residual sizes of this stand-off and drone."""
+        return ResidualScales.of(self.d_ref, self.params)
+
+    def solver_weights(self, weights: Any = None) -> Any:
+        """The weights the solver gets: ``weights`` (default this config's) scaled for ``d_ref``
+        and ``params`` when ``scale_weights`` is on, as given otherwise."""
+        w = self.weights if weights is None else weights
+        return w.scaled(self.residual_scales) if self.scale_weights else w
+
+    @property
+    def clearance_prices(self) -> tuple[float, float]:
+        """(L1, L2) prices of the clearance slack, a length: with ``scale_weights`` times k and k^2
+        for k = reference length / d_ref (the slack measured in the reference's metres), else as
+        given."""
+        if not self.scale_weights:
+            return self.clearance_l1, self.clearance_l2
+        k = ResidualScales.reference().length / self.residual_scales.length
+        return self.clearance_l1 * k, self.clearance_l2 * k * k
+
+    @property
     def hover_input(self) -> np.ndarray:
         """[0, 0, 0, m g]: the input reference and the fallback command."""
         return np.array([0.0, 0.0, 0.0, self.params.weight])
@@ -367,7 +485,8 @@ def config_ocp(name: str, config: MPCConfig, dynamics: Any, stage_residual: Any,
 def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
     """``ocp`` with the soft clearance constraint of the module docstring: one slack input
     appended (within +-SLACK_UPPER, or [0, SLACK_UPPER] with an L1 price; fallback 0), its residual
-    ``s + l1 / l2`` appended to the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const),
+    ``s + l1 / l2`` appended to the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const;
+    l1, l2 = :attr:`MPCConfig.clearance_prices`),
     and the path constraint
     on stage parameters appended to the OCP's own [n (3), b]. The first 10 states must be the drone's
     [p, v_B, q] (augmented states keep them first)."""
@@ -380,7 +499,8 @@ def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
     n, b = p[npar:npar + 3], p[npar + 3]
     name = f"{ocp.name}_clr"
     dyn = ca.Function(f"{name}_F", [x, u, p], [ocp.dynamics(x, uc, pc)], ["x", "u", "p"], ["x_next"])
-    offset = config.clearance_l1 / config.clearance_l2
+    l1, l2 = config.clearance_prices
+    offset = l1 / l2
     stage = ca.Function(f"{name}_r", [x, u, p], [ca.vertcat(ocp.stage_residual(x, uc, pc), slack + offset)],
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
@@ -389,7 +509,7 @@ def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
     h = ca.dot(n, x[0:3]) - b - approach ** 2 / (2.0 * config.clearance_brake) + slack
     path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
     return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
-               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if config.clearance_l1 > 0 else -SLACK_UPPER), u_upper=np.append(ocp.u_upper, SLACK_UPPER),
+               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER), u_upper=np.append(ocp.u_upper, SLACK_UPPER),
                fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
                path_constraint=path, h_lower=np.zeros(1), h_upper=np.full(1, np.inf))
 
@@ -481,9 +601,10 @@ class RTIPolicy(Policy):
 
     # -- common -----------------------------------------------------------------------------------
     def _weight_vectors(self, weights: Any) -> tuple[np.ndarray, np.ndarray]:
-        W, WN = weights.stage_vector(), weights.terminal_vector()
+        w = self.config.solver_weights(weights)
+        W, WN = w.stage_vector(), w.terminal_vector()
         if self.clearance_active:
-            W = np.append(W, self.config.clearance_l2)
+            W = np.append(W, self.config.clearance_prices[1])
         return W, WN
 
     def _make_solver(self, weights: Any) -> RTISolver | IpoptOCPSolver:

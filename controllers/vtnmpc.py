@@ -75,7 +75,10 @@ class VTNMPCWeights(LSQWeights):
     Defaults are the paper's (tuned by its authors' active-exploration method):
     w_h 80, w_d 30, w_r 25, w_o 60, W_x* = diag(0.3, 0.3, 1, 80, 80),
     W_u = diag(1, 1, 0.25, 0.03), W_N = 1.5 W_x*. :meth:`later_tuning` is the set from the
-    authors' later tuning file that matches their plotted results.
+    authors' later tuning file that matches their plotted results. Both are weights at the
+    paper's stand-off and drone; the solver gets them scaled for the instance's
+    (:meth:`~controllers.rti_policy.LSQWeights.scaled`: distance, ROI and orthogonality are
+    lengths, u, v, w speeds, the attitude and heading dimensionless).
     """
 
     heading: float = 80.0
@@ -88,6 +91,8 @@ class VTNMPCWeights(LSQWeights):
     STAGE: ClassVar = (("heading", 1), ("distance", 1), ("roi", 1), ("orthogonality", 1), ("x_star", 5),
                        ("inputs", 4))
     TERMINAL: ClassVar = (("x_star", 5),)
+    UNITS: ClassVar = {"heading": "1", "distance": "length", "roi": "length", "orthogonality": "length",
+                       "x_star": ("speed", "speed", "speed", "1", "1"), "inputs": ("rate", "rate", "rate", "thrust")}
 
     @classmethod
     def paper(cls) -> "VTNMPCWeights":
