@@ -281,3 +281,13 @@ def test_display_names():
     from wt_inspect.evaluation.registry import display_name
     assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"
     assert display_name("vtnmpc-plus") == "VT-NMPC+" and display_name("custom") == "custom"
+
+
+def test_results_md_names_the_turbine_and_drone_given_over_the_scenario():
+    from wt_inspect.evaluation.report import ReportContext, markdown
+    plain = markdown([], ReportContext(scenario="paper"))
+    assert "overridden" not in plain
+    text = markdown([], ReportContext(scenario="paper", overrides={"turbine": {"tower_height": 90.0},
+                                                                    "drone": "lab250"}))
+    head = text.splitlines()[2]
+    assert '**turbine overridden**: `{"tower_height": 90.0}`' in head and '**drone overridden**: `"lab250"`' in head

@@ -258,7 +258,9 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
             notes.append(f"Warning: {msg}")
     ctx = ReportContext(scenario=scenario, wind_type=wind_type, backend=backend, jobs=jobs,
                         n_planned=len(specs), n_resumed=n_resumed,
-                        command=command or "", notes=notes)
+                        command=command or "", notes=notes,
+                        overrides={k: v for k, v in (("turbine", dict(turbine or {})), ("drone", drone),
+                                                     ("env", dict(env_overrides or {}))) if v})
     try:
         if todo:
             run_specs(backend, todo, finished, jobs=jobs, address=address, factories=factories, progress=progress)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 import os
 import platform
@@ -89,6 +90,7 @@ class ReportContext:
     n_planned: int = 0
     command: str = ""
     notes: list[str] = field(default_factory=list)
+    overrides: dict = field(default_factory=dict)   # turbine / drone / env options given over the scenario's
 
 
 def hardware() -> str:
@@ -151,7 +153,10 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     sc = get_scenario(ctx.scenario)
     rows = [r.row() for r in results]
     lines = [f"# Evaluation: scenario `{sc.name}`", "",
-             f"{sc.description}; wind: {ctx.wind_type}"
+             f"{sc.description}"
+             + ("".join(f"; **{k} overridden**: `{json.dumps(v, sort_keys=True)}`" for k, v in ctx.overrides.items())
+                + " (the description above is the scenario's default)" if ctx.overrides else "")
+             + f"; wind: {ctx.wind_type}"
              + (" (the paper's: mean + sinusoid of period 10 s and std 0.5 m/s along y)" if ctx.wind_type == "gust"
                 else " (Dryden turbulence about the mean, seeded)") + ".", ""]
     if ctx.n_planned and len(results) < ctx.n_planned:
