@@ -16,7 +16,7 @@ from .quadrotor import QuadrotorParams, get_preset
 from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
 from .turbine import TurbineSpec
-from .validation import (check_array, check_choice, check_field_types, check_finite, check_positive,
+from .validation import (check_array, coerce_config, check_choice, check_field_types, check_finite, check_positive,
                          check_unknown_options)
 
 TASKS = ("full", "blade", "surface")
@@ -65,18 +65,6 @@ def check_start_offset(value: Any, name: str = "start_offset") -> tuple[float, f
         raise ValueError(f"{name} must be 3 finite numbers [m], got {value!r}")
     arr = check_array(name, value, (3,))
     return (float(arr[0]), float(arr[1]), float(arr[2]))
-
-
-def coerce_config(name: str, value: Any, cls: type) -> Any:
-    """A dataclass instance from an instance, a mapping of its fields, or None (defaults)."""
-    if value is None:
-        return cls()
-    if isinstance(value, cls):
-        return value
-    if isinstance(value, Mapping):
-        check_unknown_options(name, value.keys(), [f.name for f in dataclasses.fields(cls)])
-        return cls(**dict(value))
-    raise ValueError(f"{name} must be a {cls.__name__} or a dict of its fields, got {value!r}")
 
 
 @dataclass(frozen=True)

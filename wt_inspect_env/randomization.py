@@ -25,14 +25,13 @@ factors fit the ``matrice100`` too; why each is what it is, is in the field docs
 """
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
 import numpy as np
 
 from .quadrotor import QuadrotorParams
-from .validation import check_finite, check_unknown_options
+from .validation import check_finite, coerce_config
 
 Range = tuple[float, float]
 
@@ -132,11 +131,10 @@ def coerce_randomization(value: Any, name: str = "randomization") -> Randomizati
         return None
     if value is True:
         return RandomizationConfig()
-    if isinstance(value, RandomizationConfig):
-        return value
-    if isinstance(value, Mapping):
-        check_unknown_options(name, value.keys(), [f.name for f in dataclasses.fields(RandomizationConfig)])
-        return RandomizationConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in value.items()})
+    if isinstance(value, Mapping):   # JSON gives lists where the ranges are tuples
+        value = {k: tuple(v) if isinstance(v, list) else v for k, v in value.items()}
+    if isinstance(value, (Mapping, RandomizationConfig)):
+        return coerce_config(name, value, RandomizationConfig)
     raise ValueError(f"{name} must be None/False (off), True (default ranges), a dict of ranges or a "
                      f"RandomizationConfig, got {value!r}")
 

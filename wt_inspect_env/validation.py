@@ -10,7 +10,7 @@ import dataclasses
 import functools
 import math
 import re
-from typing import Any, Iterable
+from typing import Any, Iterable, Mapping
 
 import numpy as np
 
@@ -147,3 +147,15 @@ def _iter(value: Any) -> Iterable[Any]:
         return list(np.asarray(value, dtype=object).reshape(-1))
     except (TypeError, ValueError):
         return (value,)
+
+
+def coerce_config(name: str, value: Any, cls: type) -> Any:
+    """A dataclass instance from an instance, a mapping of its fields, or None (defaults)."""
+    if value is None:
+        return cls()
+    if isinstance(value, cls):
+        return value
+    if isinstance(value, Mapping):
+        check_unknown_options(name, value.keys(), [f.name for f in dataclasses.fields(cls)])
+        return cls(**dict(value))
+    raise ValueError(f"{name} must be a {cls.__name__} or a dict of its fields, got {value!r}")

@@ -148,7 +148,7 @@ def run_episode(spec: RunSpec, factory: Any = None, *, record: bool = True, prog
     """One campaign episode (the backends' ``task``): build, fly, count fallbacks, measure RSS;
     any exception is caught and returned as the episode's result (``termination="exception"``,
     the message in ``metrics["error"]``) so that one failing episode does not end the campaign."""
-    from wt_inspect_env.commands.timing_reference import release_free_heap, rss_mb
+    from wt_inspect_env.process_memory import release_free_heap, rss_mb
     t0 = time.perf_counter()
     env = None
     counter = None

@@ -35,7 +35,7 @@ import threading
 import time
 from typing import Any, Callable, Mapping, Sequence
 
-from wt_inspect_env.commands.timing_reference import release_free_heap
+from wt_inspect_env.process_memory import release_free_heap
 
 from .runner import RunResult, RunSpec, execute
 

@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from ..atomic_io import atomic_paths, check_out_dir
-from ..env_config import coerce_config
+from ..validation import coerce_config
 from .args import float_or_auto, json_object
 from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection

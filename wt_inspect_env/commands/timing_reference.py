@@ -10,42 +10,15 @@ with the project's code, not with the machine.
 """
 from __future__ import annotations
 
-import ctypes
-import resource
 import statistics
-import sys
 import time
 from typing import Any
 
 import pybullet as p
 
+from ..process_memory import rss_mb  # noqa: F401 - the benchmarks' memory figure, re-exported
 from ..quadrotor import QuadrotorParams
 from ..sim import _mesh_arrays, create_drone_body, new_client
-
-
-def rss_mb() -> float:
-    """Current resident set size [MB] (Linux /proc; falls back to the peak)."""
-    try:
-        with open("/proc/self/statm") as f:
-            pages = int(f.read().split()[1])
-        return pages * resource.getpagesize() / 2**20
-    except OSError:  # pragma: no cover
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
-def release_free_heap() -> bool:
-    """Return the C heap's free pages to the OS (glibc ``malloc_trim(0)``); True if it ran.
-
-    A long-lived worker that builds a turbine, a mission and solvers per episode frees them again,
-    but glibc keeps the freed arena pages: its resident set then grows in steps with the largest
-    episode so far and never shrinks, which reads as a leak in a memory trace. Trimming after each
-    episode makes the resident set measure what is still allocated. A no-op off glibc."""
-    if not sys.platform.startswith("linux"):
-        return False
-    try:
-        return bool(ctypes.CDLL("libc.so.6").malloc_trim(0) or True)
-    except (OSError, AttributeError):   # musl, or no libc under that name
-        return False
 
 
 def raw_pybullet_rate(params: QuadrotorParams, ctrl_hz: float = 100.0, physics_hz: float = 400.0,
