@@ -245,8 +245,10 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
            config: DAggerConfig | None = None, progress: bool = True, max_minutes: float | None = None,
            figure_format: str = "png") -> dict[str, Any]:
     """Behaviour cloning of the dataset, then ``config.rounds`` DAgger rounds (module docstring);
-    resumes after the last finished round of an earlier call with the same ``out``. Returns the
-    summary (also ``out/summary.json``)."""
+    resumes after the last finished round of an earlier call with the same ``out``. ``max_minutes``:
+    once this much wall time has passed in this call no round and no rollout after a round's first
+    starts (the round in progress is refitted and evaluated on what it has, so the overrun is one
+    rollout, one refit and one evaluation). Returns the summary (also ``out/summary.json``)."""
     import torch
     from tqdm import tqdm
 
@@ -380,6 +382,9 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
             student = _policy_from_model(model, spec, vecnorm, eval_env)
             rows, new_x, new_y = [], [], []
             for e in range(cfg.episodes_per_round):
+                if e and deadline is not None and time.perf_counter() - t_start >= deadline:
+                    stopped = True       # past the wall budget: refit and evaluate on what this round has
+                    break
                 v = int(rng.choice(len(variants), p=weights / weights.sum()))
                 if v not in envs:
                     env = make_raw_env(task, {**dict(recipe.env), **dict(variants[v])})
@@ -409,6 +414,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
             done = r
             finish_round(r, entry)
             bar.update(1)
+            if stopped:
+                break
         bar.close()
         venv.close()
     finally:

@@ -158,6 +158,9 @@ def test_dagger_runs_rounds_resumes_and_saves_a_resumable_model(tiny_dataset, tm
     assert [e["round"] for e in ev] == [0, 1, 2, 3] and s3["env_steps"] > s["env_steps"]
     with pytest.raises(ValueError, match="other settings"):
         dagger(tiny_dataset, out, recipe=rec, config=DAggerConfig(**{**cfg.to_dict(), "beta0": 0.9}), progress=False)
+    # a wall budget already spent: behaviour cloning and its evaluation, then no round starts
+    sb = dagger(tiny_dataset, tmp_path / "b", recipe=rec, config=cfg, progress=False, max_minutes=1e-6)
+    assert sb["stopped_by_wall_clock"] and sb["rounds_done"] == 0 and len(sb["per_round"]) == 1
     # saved like a trained model: PPO fine-tunes it
     from agents.training import train
     t = train("ppo", "full", 64, 1, tmp_path / "ft", resume=str(out / "model.zip"), progress_bar=False)
