@@ -131,7 +131,9 @@ def expert_factory(name: str) -> Callable[[Any], Any]:
 
 class ShadowExpert:
     """An expert policy run beside the learner (see the module docstring): :meth:`label` on every
-    control step's observation, :meth:`applied` with the action the env was then given."""
+    control step's observation, :meth:`applied` with the action the env was then given. An expert
+    without ``note_applied_action`` is taken to keep no state that assumes its own command was
+    applied (a stateless feedback law); the MPCs on :class:`controllers.rti_policy.RTIPolicy` have it."""
 
     def __init__(self, policy: Any) -> None:
         self.policy = policy
