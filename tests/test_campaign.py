@@ -72,3 +72,32 @@ def test_two_episode_campaign_writes_everything(tmp_path) -> None:
     assert "QP fallbacks" in (out / "results.md").read_text() and (out / "campaign.png").is_file()
     again = cp.run_campaign(cfg, out, jobs=1, progress=False)   # resumed from the run files
     assert again["summary"]["steps"] == 60 and again["wall_time_s"] < doc["wall_time_s"]
+
+
+def test_a_start_drawn_inside_the_turbine_gets_a_new_direction_deterministically() -> None:
+    # campaign episodes 94 and 166 of seed 0 drew starts inside a blade and the tower (collision
+    # at the first step); the campaign now redraws such a direction from the episode's seed
+    from wt_inspect.evaluation.runner import make_env
+    from wt_inspect_env.proximity import TurbineProximity
+    d = cp.draw_episodes(cp.CampaignConfig(episodes=167))[166]
+    spec = make_spec(cp.SCENARIO, "vtnmpc-plus", d["wind"], d["seed"], cp.episode_options(d, "full"), 1.0, 10)
+    env = make_env(spec.env_options)
+    try:
+        u = env.unwrapped
+        near = TurbineProximity.from_mission(u.mission).phases[0]
+        u.reset(seed=spec.seed)
+        assert near.distance(u.sim.state[None, 0:3])[0] < 1.0          # the drawn start is in the tower
+        offset, redraws = cp.clear_start(env, spec)
+        assert redraws >= 1 and np.isclose(np.linalg.norm(offset), d["start_offset_m"])
+        assert near.distance(u.sim.state[None, 0:3])[0] >= cp.START_CLEARANCE_RATIO * 7.0
+        assert cp.clear_start(env, spec) == (offset, redraws)            # seeded by the episode
+        clear = cp.draw_episodes(cp.CampaignConfig(episodes=1))[0]
+        spec0 = make_spec(cp.SCENARIO, "vtnmpc-plus", clear["wind"], clear["seed"], cp.episode_options(clear, "full"),
+                          1.0, 10)
+        env0 = make_env(spec0.env_options)
+        try:
+            assert cp.clear_start(env0, spec0) == (list(clear["start_offset"]), 0)   # a clear start is kept
+        finally:
+            env0.close()
+    finally:
+        env.close()

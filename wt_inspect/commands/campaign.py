@@ -9,7 +9,9 @@ a turbine (tower height, blade length and width within :data:`SIZE_RANGES`), a r
 [0, 120) deg with the planner choosing the rotor turns (``rotor_turn_deg=None``), a mean wind in
 [0, ``--max-wind``] m/s with Dryden turbulence from a random horizontal direction within 45 deg of
 the rotor axis, a start up to ``--max-offset`` m off the ideal stand-off pose (a random direction
-with no downward part, so a start is not under ground), and the episode's reset seed. Every
+with no downward part, so a start is not under ground; a start nearer the turbine than 3/7 d_ref -
+inside or against the structure - gets a new direction, ``START_CLEARANCE_RATIO``), and the
+episode's reset seed. Every
 episode runs through the evaluation harness's backends (the local process pool or Ray, as
 ``evaluate``) and is recorded: a row of ``episodes.csv`` and its trajectory in
 ``runs/<name>.npz`` (the evaluation's run-file format). An exception in an episode - building
@@ -52,8 +54,14 @@ SCENARIO = "campaign"
 SIZE_RANGES: Mapping[str, tuple[float, float]] = {"tower_height": (80.0, 130.0), "blade_length": (35.0, 60.0),
                                                   "blade_width": (2.5, 4.5)}
 MAX_DIRECTION_DEG = 45.0   # wind direction: within this of the rotor axis (the paper's wind along it)
+# A drawn start nearer the turbine than this fraction of d_ref (the MPCs' default d_min, 3 m at 7 m)
+# is a start inside or against the structure - a bad draw, not a test of the controller: its
+# direction is redrawn (same distance) from a generator seeded by the episode's seed.
+START_CLEARANCE_RATIO = 3.0 / 7.0
+MAX_START_REDRAWS = 100
+RSS_WARMUP_EPISODES = 20   # a worker's first episodes compile solvers and fill caches: memory grows, then holds
 COLUMNS = ("episode", "seed", "wind", "wind_direction_deg", "tower_height", "blade_length", "blade_width",
-           "rotor_azimuth_deg", "start_offset_m", "termination", "crashed", "exception", "non_finite",
+           "rotor_azimuth_deg", "start_offset_m", "start_redraws", "termination", "crashed", "exception", "non_finite",
            "collisions", "steps", "fallback_steps", "fallback_fraction", "coverage", "safety", "centering",
            "min_distance", "sim_time", "wall_time", "rss_mb", "worker", "run_file", "error")
 
@@ -144,6 +152,28 @@ class _FallbackCounter:
         return action
 
 
+def clear_start(env: Any, spec: RunSpec) -> tuple[list[float], int]:
+    """The episode's start offset with its start at least ``START_CLEARANCE_RATIO * d_ref`` from
+    the turbine: the drawn one, or the first of up to ``MAX_START_REDRAWS`` directions redrawn
+    (same length, no downward part) that is. Returns the offset and the number of redraws."""
+    from wt_inspect_env.proximity import TurbineProximity
+    u = env.unwrapped
+    near = TurbineProximity.from_mission(u.mission).phases[0]
+    need = START_CLEARANCE_RATIO * float(u.config.standoff)
+    offset = np.asarray(spec.env_options.get("start_offset", (0.0, 0.0, 0.0)), dtype=float)
+    r = float(np.linalg.norm(offset))
+    rng = np.random.default_rng(spec.seed)
+    for k in range(MAX_START_REDRAWS + 1):
+        u.reset(seed=spec.seed, options={"start_offset": offset.tolist()})
+        if float(near.distance(u.sim.state[None, 0:3])[0]) >= need:
+            return offset.tolist(), k
+        v = rng.normal(size=3)
+        v[2] = abs(v[2])
+        offset = r * v / max(float(np.linalg.norm(v)), 1e-12)
+    raise RuntimeError(f"no start {r:.1f} m off the first pose is {need:.1f} m clear of the turbine "
+                       f"after {MAX_START_REDRAWS} directions")
+
+
 def run_episode(spec: RunSpec, factory: Any = None, *, record: bool = True, progress: Any = None) -> RunResult:
     """One campaign episode (the backends' ``task``): build, fly, count fallbacks, measure RSS;
     any exception is caught and returned as the episode's result (``termination="exception"``,
@@ -154,10 +184,15 @@ def run_episode(spec: RunSpec, factory: Any = None, *, record: bool = True, prog
     counter = None
     try:
         env = make_env(spec.env_options)
+        offset, redraws = clear_start(env, spec)
+        if redraws:
+            env.close()
+            env = make_env({**spec.env_options, "start_offset": offset})
         policy = registry.resolve(spec.controller)(env.unwrapped)
         counter = _FallbackCounter(policy)
         res = fly(env, counter, spec, record=record, progress=progress)
         res.solve["fallback_steps"] = float(counter.fallbacks)
+        res.solve["start_redraws"] = float(redraws)
     except Exception as exc:   # the campaign records every failure and goes on
         where = traceback.extract_tb(exc.__traceback__)[-1]
         msg = f"{type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''} " \
@@ -182,7 +217,7 @@ def _row(draw: Mapping[str, Any], res: RunResult) -> dict[str, Any]:
     fb = res.solve.get("fallback_steps", math.nan)
     return {**{k: draw[k] for k in ("episode", "seed", "wind", "wind_direction_deg", "tower_height", "blade_length",
                                     "blade_width", "rotor_azimuth_deg", "start_offset_m")},
-            "termination": term, "crashed": term in ("collision", "left_working_volume"),
+            "start_redraws": int(res.solve.get("start_redraws", 0) or 0), "termination": term, "crashed": term in ("collision", "left_working_volume"),
             "exception": term == "exception", "non_finite": term == "non_finite_state",
             "collisions": m.get("collisions", 0) or 0, "steps": res.steps, "fallback_steps": fb,
             "fallback_fraction": fb / res.steps if res.steps else math.nan,
@@ -199,11 +234,13 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     steps = sum(int(r["steps"]) for r in rows)
     fb = sum(float(r["fallback_steps"]) for r in rows if not math.isnan(float(r["fallback_steps"])))
     rss = [float(r["rss_mb"]) for r in rows if not math.isnan(float(r["rss_mb"]))]
-    slopes = []   # per worker: episodes run one after another in the same process
+    slopes, late = [], []   # per worker: episodes run one after another in the same process
     for w in sorted({r["worker"] for r in rows}):
         mine = [float(r["rss_mb"]) for r in rows if r["worker"] == w and not math.isnan(float(r["rss_mb"]))]
         if len(mine) >= 3:
             slopes.append(float(np.polyfit(np.arange(len(mine)), mine, 1)[0]))
+        if len(mine) >= RSS_WARMUP_EPISODES + 3:   # after the first-use compiles and caches
+            late.append(float(np.polyfit(np.arange(len(mine) - RSS_WARMUP_EPISODES), mine[RSS_WARMUP_EPISODES:], 1)[0]))
     slope = max(slopes) if slopes else math.nan
     wall = [float(r["wall_time"]) for r in rows]
     return {"episodes": n, "exceptions": sum(bool(r["exception"]) for r in rows),
@@ -214,6 +251,8 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
             "steps": steps, "fallback_steps": fb, "fallback_fraction": fb / steps if steps else math.nan,
             "rss_first_mb": rss[0] if rss else math.nan, "rss_last_mb": rss[-1] if rss else math.nan,
             "rss_max_mb": max(rss) if rss else math.nan, "rss_slope_mb_per_episode": slope,
+            "rss_slope_after_warmup_mb_per_episode": max(late) if late else math.nan,
+            "start_redraws": sum(int(r.get("start_redraws", 0) or 0) for r in rows),
             "wall_time_per_episode_s": float(np.mean(wall)) if wall else math.nan,
             "terminations": {t: sum(r["termination"] == t for r in rows) for t in sorted({r["termination"] for r in rows})}}
 
@@ -237,7 +276,10 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
              f"| QP fallbacks | {s['fallback_steps']:.0f} of {s['steps']} steps ({100 * s['fallback_fraction']:.4f} %) "
              f"| < 0.1 % |",
              f"| worker memory (RSS after each episode) | {s['rss_first_mb']:.1f} -> {s['rss_last_mb']:.1f} MB, max "
-             f"{s['rss_max_mb']:.1f}, largest slope of a worker {s['rss_slope_mb_per_episode']:+.3f} MB/episode | flat |",
+             f"{s['rss_max_mb']:.1f}, largest slope of a worker {s['rss_slope_mb_per_episode']:+.3f} MB/episode "
+             f"({s['rss_slope_after_warmup_mb_per_episode']:+.3f} after its first {RSS_WARMUP_EPISODES}) | flat |",
+             f"| starts redrawn (drawn within {START_CLEARANCE_RATIO:.2f} d_ref of the turbine) | {s['start_redraws']} "
+             "| - |",
              f"| wall time | {wall:.1f} s ({s['wall_time_per_episode_s']:.1f} s per episode in a worker) | - |", "",
              "Terminations: " + ", ".join(f"{k or 'none'} {v}" for k, v in s["terminations"].items()), "",
              "| # | wind | tower / blade | azimuth | offset | end | coverage | SM | fallbacks | RSS | error |",
