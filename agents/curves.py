@@ -3,10 +3,13 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from pathlib import Path
+from typing import Any, Mapping
 
 import numpy as np
 
+from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, save_figure
 
 
@@ -78,3 +81,13 @@ def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0
         return save_figure(fig, path, fmt)
     finally:
         plt.close(fig)
+
+
+def write_run_summary(out: Path, summary: Mapping[str, Any], fmt: str = DEFAULT_FIGURE_FORMAT) -> None:
+    """A finished run's ``summary.json`` (atomically), then its learning curve - a figure that
+    cannot be drawn is a warning, never a lost run (RL training and DAgger finish the same way)."""
+    write_text_atomic(Path(out) / "summary.json", json.dumps(summary, indent=1))
+    try:
+        plot_learning_curve(out, Path(out) / "learning_curve.png", fmt=fmt)
+    except Exception as exc:  # a figure must never lose a finished run
+        print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)

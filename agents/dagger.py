@@ -437,12 +437,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
                                                            "collisions")},
                               "termination": e["episodes"][0]["termination"]} for e in evaluations],
                "machine": {"cpus": os.cpu_count(), "torch_threads": recipe.torch_threads}}
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
-    try:
-        from .curves import plot_learning_curve
-        plot_learning_curve(out, out / "learning_curve.png", fmt=figure_format)
-    except Exception as exc:  # a figure must never lose a finished run
-        print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
+    from .curves import write_run_summary
+    write_run_summary(out, summary, figure_format)
     return summary
 
 

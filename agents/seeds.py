@@ -93,11 +93,12 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     else:
         for s in todo:
             _one_seed(train_kwargs, s, str(out / f"seed_{s}"), progress)
-    doc = seed_report(out, seeds, report_targets(_recipe_target(train_kwargs)))
+    targets = report_targets(_recipe_target(train_kwargs))
+    doc = seed_report(out, seeds, targets)
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
-                         targets=report_targets(_recipe_target(train_kwargs)))
+                         targets=targets)
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc

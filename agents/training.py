@@ -453,10 +453,6 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         "machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                     "torch": torch.__version__, "torch_threads": rec.torch_threads},
     }
-    write_text_atomic(out / "summary.json", json.dumps(summary, indent=1))
-    try:
-        from .curves import plot_learning_curve
-        plot_learning_curve(out, out / "learning_curve.png", fmt=figure_format)
-    except Exception as exc:  # a figure must never lose a finished run
-        print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
+    from .curves import write_run_summary
+    write_run_summary(out, summary, figure_format)
     return summary

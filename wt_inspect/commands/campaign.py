@@ -156,9 +156,9 @@ def clear_start(env: Any, spec: RunSpec) -> tuple[list[float], int]:
     """The episode's start offset with its start at least ``START_CLEARANCE_RATIO * d_ref`` from
     the turbine: the drawn one, or the first of up to ``MAX_START_REDRAWS`` directions redrawn
     (same length, no downward part) that is. Returns the offset and the number of redraws."""
-    from wt_inspect_env.proximity import TurbineProximity
+    from wt_inspect_env.proximity import MeshProximity
     u = env.unwrapped
-    near = TurbineProximity.from_mission(u.mission).phases[0]
+    near = MeshProximity(u.mission.turbines[0].mesh.triangles)   # the start's rotor position only
     need = START_CLEARANCE_RATIO * float(u.config.standoff)
     offset = np.asarray(spec.env_options.get("start_offset", (0.0, 0.0, 0.0)), dtype=float)
     r = float(np.linalg.norm(offset))
@@ -217,7 +217,8 @@ def _row(draw: Mapping[str, Any], res: RunResult) -> dict[str, Any]:
     fb = res.solve.get("fallback_steps", math.nan)
     return {**{k: draw[k] for k in ("episode", "seed", "wind", "wind_direction_deg", "tower_height", "blade_length",
                                     "blade_width", "rotor_azimuth_deg", "start_offset_m")},
-            "start_redraws": int(res.solve.get("start_redraws", 0) or 0), "termination": term, "crashed": term in ("collision", "left_working_volume"),
+            "start_redraws": int(res.solve.get("start_redraws", 0) or 0),
+            "termination": term, "crashed": term in ("collision", "left_working_volume"),
             "exception": term == "exception", "non_finite": term == "non_finite_state",
             "collisions": m.get("collisions", 0) or 0, "steps": res.steps, "fallback_steps": fb,
             "fallback_fraction": fb / res.steps if res.steps else math.nan,
