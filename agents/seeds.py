@@ -55,13 +55,24 @@ def _latest_checkpoint(run: Path) -> Path | None:
     return ckpts[-1] if ckpts else None
 
 
+def base_training(resume: str | Path | None) -> dict[str, float]:
+    """Env steps and wall time already in the model every seed starts from (``--resume``: a
+    fine-tune stage); zeros when the seeds train from scratch."""
+    if resume is None:
+        return {"env_steps": 0, "wall_time_s": 0.0}
+    from .policy import load_sidecar, sidecar_paths
+    training = load_sidecar(sidecar_paths(resume)[0]).get("training", {})
+    return {"env_steps": int(training.get("env_steps", 0)), "wall_time_s": float(training.get("wall_time_s", 0.0))}
+
+
 def _one_seed(kwargs: Mapping[str, Any], seed: int, run: str, progress: bool) -> dict[str, Any]:
     from .training import train
     run_dir = Path(run)
     ckpt = _latest_checkpoint(run_dir)
     kw = dict(kwargs)
-    if ckpt is not None:
+    if ckpt is not None:   # the checkpoint's steps include those of the base model a fine-tune started from
         done = int(json.loads(ckpt.with_suffix(".json").read_text())["training"]["env_steps"])
+        done -= base_training(kw.get("resume"))["env_steps"]
         kw["timesteps"] = max(1, int(kw["timesteps"]) - done)
         kw["resume"] = str(ckpt)
         kw["recipe"] = None
@@ -94,7 +105,8 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
         for s in todo:
             _one_seed(train_kwargs, s, str(out / f"seed_{s}"), progress)
     targets = report_targets(_recipe_target(train_kwargs))
-    doc = seed_report(out, seeds, targets)
+    doc = seed_report(out, seeds, targets, base=base_training(train_kwargs.get("resume")))
+    doc["resumed_from"] = None if train_kwargs.get("resume") is None else str(train_kwargs["resume"])
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
@@ -132,11 +144,15 @@ def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> b
 
 
 def seed_report(out: Path, seeds: Sequence[int],
-                targets: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, Any]:
+                targets: Mapping[str, Mapping[str, float]] | None = None,
+                base: Mapping[str, float] | None = None) -> dict[str, Any]:
     """Per seed: final evaluation, and for each of ``targets`` (name -> thresholds; default
     ``{"mission": TARGET}``) the first evaluation that met it. The first target is the headline:
-    its result is also given as ``target`` / ``reached_target`` / ``n_reached``."""
+    its result is also given as ``target`` / ``reached_target`` / ``n_reached``. ``base``: the
+    env steps and wall time of the model a fine-tune stage started from (:func:`base_training`);
+    the evaluations count them, so ``stage_env_steps`` / ``stage_wall_s`` subtract them."""
     targets = dict(targets or {"mission": TARGET})
+    base = dict(base or {"env_steps": 0, "wall_time_s": 0.0})
     rows = []
     for s in seeds:
         evals = _evaluations(out / f"seed_{s}")
@@ -146,7 +162,9 @@ def seed_report(out: Path, seeds: Sequence[int],
             hit = next((e for e in evals if reached(e, target)), None)
             row["targets"][name] = {"reached": hit is not None,
                                     "env_steps": None if hit is None else hit["env_steps"],
-                                    "wall_s": None if hit is None else hit["wall_time_s"]}
+                                    "wall_s": None if hit is None else hit["wall_time_s"],
+                                    "stage_env_steps": None if hit is None else hit["env_steps"] - base["env_steps"],
+                                    "stage_wall_s": None if hit is None else hit["wall_time_s"] - base["wall_time_s"]}
         head = row["targets"][next(iter(targets))]
         row.update(reached_target=head["reached"], reached_at_env_steps=head["env_steps"],
                    reached_at_wall_s=head["wall_s"])
@@ -154,7 +172,7 @@ def seed_report(out: Path, seeds: Sequence[int],
     summary = {name: {"target": dict(t), "n_reached": sum(r["targets"][name]["reached"] for r in rows)}
                for name, t in targets.items()}
     first = next(iter(targets))
-    return {"target": dict(targets[first]), "target_name": first, "seeds": rows,
+    return {"target": dict(targets[first]), "target_name": first, "seeds": rows, "base": base,
             "n_reached": summary[first]["n_reached"], "targets": summary}
 
 

@@ -104,7 +104,7 @@ def _seeds(args, prog: str) -> int:
     try:
         seeds = parse_seeds(args.seeds)
         doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,
-                          timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe,
+                          timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe, resume=args.resume,
                           max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
                           progress_bar=not args.no_progress, trust_model=args.trust_model,
                           figure_format=args.figure_format)

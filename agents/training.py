@@ -314,6 +314,21 @@ def _algo_kwargs(recipe: Recipe) -> dict[str, Any]:
     return sb3_algo_kwargs(recipe.algo_kwargs)
 
 
+# PPO settings a fine-tune's recipe may change on a resumed model (SB3's ``load(**kwargs)`` sets
+# them before the rollout buffer is built): the rollout length per drone must follow the number of
+# drones, or a 16-drone fine-tune of a 2-env model would collect 8x longer rollouts per update.
+PPO_RESUME_KEYS = ("n_steps", "batch_size", "n_epochs", "gae_lambda", "ent_coef", "vf_coef", "max_grad_norm",
+                   "target_kl")
+
+
+def resume_overrides(algo: str, recipe: Recipe) -> dict[str, Any]:
+    """The settings of an explicitly given recipe applied to a resumed PPO model (none for SAC)."""
+    if algo != "ppo":
+        return {}
+    kw = _algo_kwargs(recipe)
+    return {k: kw[k] for k in PPO_RESUME_KEYS if k in kw}
+
+
 def _policy_kwargs(recipe: Recipe) -> dict[str, Any]:
     return sb3_policy_kwargs(recipe.policy_kwargs)
 
@@ -410,8 +425,12 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         venv = vecnorm
     tb = str(out / "tb")
     if ckpt_doc is not None:
+        changes = resume_overrides(algo, rec) if recipe is not None else {}
         model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
-                               device="cpu", tensorboard_log=tb)
+                               device="cpu", tensorboard_log=tb, **changes)
+        # SB3's load does not reseed: without this, the seeds of a fine-tune would share torch's
+        # unseeded stream and no fine-tune would be reproducible.
+        model.set_random_seed(seed)
         env_steps0 = int(ckpt_doc.get("training", {}).get("env_steps", 0))
         wall0 = float(ckpt_doc.get("training", {}).get("wall_time_s", 0.0))
     else:

@@ -63,3 +63,7 @@ def test_two_rows_fly_and_write_the_study(tmp_path):
     assert all(c["controller"] == "vtnmpc-later" for c in cells)
     # the wider lens sees more of the surface from the same start: coverage can only grow
     assert cells[1]["coverage"] > cells[0]["coverage"] > 0.0
+    # the lens does not act on the flight: row 1 re-scores row 0's flights instead of flying
+    assert cells[1]["rescored"] and not cells[0]["rescored"]
+    assert [d.name for d in (tmp_path / "rows").iterdir()] == ["00_paper-faithful"]
+    assert "↻" in (tmp_path / "results.md").read_text()

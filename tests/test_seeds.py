@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -67,7 +68,12 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
     assert doc["target_name"] == "recipe" and doc["n_reached"] == 2
     assert [r["reached_at_env_steps"] for r in doc["seeds"]] == [1000, 2000]
     assert doc["targets"]["mission"]["n_reached"] == 1
-    assert doc["seeds"][0]["targets"]["mission"] == {"reached": True, "env_steps": 2000, "wall_s": 2.0}
+    assert doc["seeds"][0]["targets"]["mission"] == {"reached": True, "env_steps": 2000, "wall_s": 2.0,
+                                                     "stage_env_steps": 2000, "stage_wall_s": 2.0}
+    # a fine-tune stage's evaluations count the base model's steps: the stage columns subtract them
+    staged = seed_report(tmp_path, [0, 1], targets, base={"env_steps": 500, "wall_time_s": 0.5})
+    assert staged["seeds"][0]["targets"]["recipe"]["stage_env_steps"] == 500
+    assert staged["seeds"][0]["targets"]["recipe"]["stage_wall_s"] == pytest.approx(0.5)
     assert doc["seeds"][1]["targets"]["mission"]["reached"] is False
     assert list(report_targets(None)) == ["mission"]
 
@@ -80,6 +86,53 @@ def test_recipe_target_is_checked(bad, match):
     with pytest.raises(ValueError, match=match):
         Recipe.from_dict({**data, "target": bad})
     assert Recipe.from_dict({**data, "target": {"coverage": 0.9}}).target == {"coverage": 0.9}
+
+
+@pytest.mark.slow
+def test_fine_tune_seeds_start_from_one_base_take_the_recipes_rollout_and_resume(tmp_path):
+    """``--seeds`` with ``--resume``: every seed fine-tunes the same base model, seeded (the same
+    seed twice gives the same weights, two seeds differ), with the recipe's rollout length (not
+    the base's), and an interrupted seed resumes counting only its own stage's steps."""
+    import zipfile
+
+    from agents.training import train
+    recipe = _tiny_recipe_file(tmp_path)
+    base = train("ppo", "surface", 300, 1, tmp_path / "base", recipe=recipe, progress_bar=False)["final_model"]
+    data = json.loads(Path(recipe).read_text())
+    data["algo_kwargs"]["n_steps"] = 16
+    data["algo_kwargs"]["batch_size"] = 16
+    ft = tmp_path / "ft.json"
+    ft.write_text(json.dumps(data))
+    kw = dict(algo="ppo", task="surface", timesteps=600, n_envs=2, recipe=str(ft), resume=base, progress_bar=False)
+    doc = train_seeds([0, 1], tmp_path / "a", **kw)
+    base_steps = doc["base"]["env_steps"]
+    assert base_steps > 0 and doc["resumed_from"] == base
+
+    def params(run):
+        with zipfile.ZipFile(run / "model.zip") as z:
+            return z.read("policy.pth")
+
+    def n_steps(run):
+        with zipfile.ZipFile(run / "model.zip") as z:
+            return json.loads(z.read("data"))["n_steps"]
+
+    a0, a1 = tmp_path / "a" / "seed_0", tmp_path / "a" / "seed_1"
+    assert n_steps(a0) == 16
+    assert params(a0) != params(a1)
+    train_seeds([0], tmp_path / "b", **kw)
+    assert params(tmp_path / "b" / "seed_0") == params(a0)
+    # interrupted after its first checkpoint: the rerun trains only the rest of the stage
+    (a1 / "summary.json").unlink()
+    step = lambda f: int(f.name.split("_")[1].split(".")[0])   # noqa: E731
+    ckpts = sorted(a1.glob("checkpoints/ckpt_*"), key=step)
+    first = step(ckpts[0])
+    for late in ckpts:
+        if step(late) != first:
+            late.unlink()
+    assert (a1 / "checkpoints" / f"ckpt_{first}.zip").is_file() and first < base_steps + 600
+    train_seeds([1], tmp_path / "a", **kw)
+    total = json.loads((a1 / "summary.json").read_text())["env_steps"]
+    assert base_steps + 600 <= total < base_steps + 600 + 2 * 16 * 4 * 2
 
 
 @pytest.mark.slow

@@ -28,7 +28,11 @@ row    change                    what
 =====  ========================  ===========================================================
 
 A (environment, controller) pair already flown by an earlier row is not flown again: rows 5-9 only
-fly the column that changed. Each row's runs go through :func:`~wt_inspect.evaluation.run_evaluation`
+fly the column that changed. Rows that change only the camera or the coverage rule (1 and 2:
+:data:`COVERAGE_ONLY_KEYS`) are not flown either: neither acts on the flight, so the previous
+row's recorded flights are re-scored under the new camera and rule
+(:func:`~wt_inspect.evaluation.runner.rescore_coverage`, per-triangle identical to flying them -
+tested), which saves a third of the study's flights. Each row's runs go through :func:`~wt_inspect.evaluation.run_evaluation`
 (its own directory under ``OUT/rows/``, resumable), and the study writes ``OUT/results.md``,
 ``OUT/results.json`` and ``OUT/ablation.png`` (atomically). ``--task blade`` or ``surface`` runs the
 chain on the smaller tasks (scenarios ``paper-faithful-blade`` / ``-surface``) when the full mission
@@ -49,7 +53,8 @@ from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_figure
 
 from .evaluation import OutputDirError, prepare_out_dir, run_evaluation
-from .evaluation.scenarios import get_scenario, paper_numbers
+from .evaluation.runner import load_run, rescore_coverage
+from .evaluation.scenarios import env_options, get_scenario, paper_numbers
 
 COLUMNS = ("NMPC", "PAMPC", "VT-NMPC")
 METRICS = (("coverage", "coverage", "%"), ("safety", "SM", "%"), ("centering", "CM", "%"),
@@ -102,8 +107,28 @@ def plan_rows(steps: Sequence[AblationStep] = STEPS) -> list[dict[str, Any]]:
     return rows
 
 
+#: environment options that change only what counts as seen, not the flight
+COVERAGE_ONLY_KEYS = ("camera", "occlusion")
+
+
 def _env_key(env: Mapping[str, Any]) -> str:
     return json.dumps(env, sort_keys=True)
+
+
+def _flight_key(env: Mapping[str, Any]) -> str:
+    return _env_key({k: v for k, v in env.items() if k not in COVERAGE_ONLY_KEYS})
+
+
+def _rescored_row(row: Mapping[str, Any], run_path: Path, scenario: str, env: Mapping[str, Any]) -> dict[str, Any]:
+    """``row`` of a flown run with the coverage of its frames under ``env``'s camera and rule."""
+    t0 = time.perf_counter()
+    result = load_run(run_path)
+    opts = env_options(scenario, float(row["wind"]), overrides=env)
+    if _flight_key(opts) != _flight_key(result.spec.env_options):
+        raise ValueError(f"cannot re-score {run_path}: its flight options differ from the row's beyond "
+                         f"{', '.join(COVERAGE_ONLY_KEYS)}")
+    score = rescore_coverage(result, opts)
+    return {**row, "coverage": score["coverage"], "wall_time": time.perf_counter() - t0, "rescored": True}
 
 
 def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] = (4.0, 7.0),
@@ -123,7 +148,8 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
            "wall_time_s": 0.0, "complete": False, "rows": [],
            "paper": {f"{col}@{w:g}": paper_numbers("paper", w, base)
                      for col, base in zip(COLUMNS, ("nmpc", "pampc", "vtnmpc")) for w in winds}}
-    flown: dict[tuple[str, str, float], dict[str, Any]] = {}
+    flown: dict[tuple[str, str, float], dict[str, Any]] = {}      # (env key, controller, wind) -> row
+    flights: dict[tuple[str, str, float], tuple[dict[str, Any], Path]] = {}   # (flight key, ...) -> row, run file
 
     def write(final: bool) -> None:
         # after every row, so an interrupted study still reports the rows it finished
@@ -135,21 +161,29 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
 
     try:
         for i, row in enumerate(rows):
-            ek = _env_key(row["env"])
+            ek, fk = _env_key(row["env"]), _flight_key(row["env"])
             new = sorted({c for c in row["controllers"].values()
-                          if any((ek, c, float(w)) not in flown for w in winds)})
+                          if any((fk, c, float(w)) not in flights for w in winds)})
             if new:
                 ev = run_evaluation(scenario, new, winds, (0,), out=out / "rows" / f"{i:02d}_{row['key']}",
                                     jobs=jobs, max_time=max_time, env_overrides=row["env"], figures=False,
                                     progress=progress)
-                for r in ev.rows():
+                for res in ev.results:
+                    r = res.row()
                     flown[(ek, r["controller"], float(r["wind"]))] = r
+                    flights[(fk, r["controller"], float(r["wind"]))] = (r, res.path)
+            for c in sorted(set(row["controllers"].values())):
+                for w in winds:
+                    key = (ek, c, float(w))
+                    if key not in flown:   # flown before under another camera / rule: re-score its frames
+                        flown[key] = _rescored_row(*flights[(fk, c, float(w))], scenario, row["env"])
             row["cells"] = {}
             for col, name in row["controllers"].items():
                 for w in winds:
                     r = flown[(ek, name, float(w))]
                     row["cells"][f"{col}@{w:g}"] = {m: float(r[m]) for m, _, _ in METRICS} | {
-                        "controller": name, "termination": r["termination"], "wall_time": float(r["wall_time"])}
+                        "controller": name, "termination": r["termination"], "wall_time": float(r["wall_time"]),
+                        "rescored": bool(r.get("rescored", False))}
             doc["rows"].append(row)
             write(final=False)
         doc["complete"] = True
@@ -194,7 +228,8 @@ def markdown(doc: Mapping[str, Any]) -> str:
                 parts = [_fmt(c[m], u) + _delta(c[m], p[m] if p else None, u) for m, _, u in METRICS]
                 # a run capped by --max-time always ends at its time limit: mark only uncapped ones
                 tl = " ⏱" if c["termination"] == "time_limit" and not doc["max_time"] else ""
-                cells.append(" / ".join(parts) + f" `{c['controller']}`{tl}")
+                rs = " ↻" if c.get("rescored") else ""
+                cells.append(" / ".join(parts) + f" `{c['controller']}`{tl}{rs}")
             lines.append(f"| {i} | {row['label']} | " + " | ".join(cells) + " |")
             prev_row = row
         paper = [doc["paper"].get(f"{col}@{w:g}", {}) for col in COLUMNS]
@@ -202,6 +237,9 @@ def markdown(doc: Mapping[str, Any]) -> str:
             lines.append("| | paper (Gazebo, full mission) | " + " | ".join(
                 " / ".join(_fmt(p.get(m, math.nan), u) for m, _, u in METRICS) for p in paper) + " |")
         lines.append("")
+    if any(c.get("rescored") for row in doc["rows"] for c in row["cells"].values()):
+        lines += ["↻: not flown again - the flight of the row above re-scored under this row's camera and coverage "
+                  "rule (neither acts on the flight; `wt_inspect.evaluation.runner.rescore_coverage`).", ""]
     lines += (["⏱: the run hit its time limit (the closed-loop reference waited for a drone blown off its pose).",
                ""] if not doc["max_time"] else []) + ["Rows (see `wt_inspect/ablation.py`): " + "; ".join(
                   f"{i} {r['key']}: env {json.dumps(r['env'], sort_keys=True)}" for i, r in enumerate(doc["rows"])

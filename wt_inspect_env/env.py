@@ -354,6 +354,42 @@ class WindTurbineInspectionEnv(gym.Env):
             self._geometry_index = index
         self._phase_index = index
 
+    def replay_coverage(self, position: np.ndarray, quaternion: np.ndarray, phase: np.ndarray,
+                        waiting: np.ndarray) -> CoverageTracker:
+        """Coverage of a recorded flight under *this* env's camera and coverage rule, without flying.
+
+        Why: the camera and the coverage rule do not act on the flight (no controller or reward
+        term the flight depends on reads them), so a study of lens or rule changes can re-score
+        the frames of one flight instead of flying it again. The arrays are one row per control
+        step from the reset on (row 0 = the reset state, row k = after step k; as the evaluation
+        harness records them with ``record_every=1``): positions ``(K, 3)``, quaternions
+        ``(K, 4)``, the reference's phase label (1, 2) and whether it was waiting for the phase
+        change (``info["phase"]``, ``info["waiting_for_phase_change"]``). Frames are taken where
+        :meth:`step` takes them (row 0 and every ``ctrl_hz / camera_hz``-th row), with the geometry
+        the env used there: the next phase's (turned rotor) from the start of a phase-change hold. Call after
+        :meth:`reset` with the flight's seed (for randomised turbines); it leaves the env's own
+        coverage reset and returns a new tracker.
+        """
+        pos = check_array("position", position, (None, 3))
+        quat = check_array("quaternion", quaternion, (len(pos), 4))
+        ph, wait = np.asarray(phase), np.asarray(waiting)
+        for name, arr in (("phase", ph), ("waiting", wait)):
+            if arr.shape != (len(pos),):
+                raise ValueError(f"{name} must have one entry per row ({len(pos)}), got shape {arr.shape}")
+        geometry = ph.astype(np.int64) - 1 + wait.astype(bool)     # as step(): the turn starts with the hold
+        tracker = CoverageTracker(self.n_triangles, areas=self.mission.turbines[0].blade_areas[self.mission.inspected])
+        rows = [0] + list(range(self._camera_every, len(pos), self._camera_every))
+        try:
+            for k in rows:
+                if not (np.isfinite(pos[k]).all() and np.isfinite(quat[k]).all()):
+                    continue
+                self._set_phase(int(geometry[k]))
+                origin, R = self.camera.pose(pos[k], quat[k])
+                tracker.update_indices(self.visibility.visible_indices(origin, R))
+        finally:
+            self._set_phase(0)
+        return tracker
+
     def _frame(self) -> int:
         """Take one camera frame; returns how many triangles were seen for the first time."""
         state = self.sim.state

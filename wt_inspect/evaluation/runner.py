@@ -391,6 +391,33 @@ def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
         env.close()
 
 
+def rescore_coverage(result: RunResult, env_options: Mapping[str, Any]) -> dict[str, Any]:
+    """Coverage of a recorded run under other camera / coverage-rule options, without flying it.
+
+    ``env_options``: the run's own options with only the camera or the coverage rule changed
+    (``camera``, ``occlusion``); the flight does not depend on them, so the run's frames are
+    re-scored (:meth:`~wt_inspect_env.env.InspectionEnv.replay_coverage`). Needs the run's full
+    trajectory (``record_every=1``). Returns ``coverage``, ``area_coverage`` and the
+    per-triangle ``counts``.
+    """
+    spec = result.spec
+    if spec.record_every != 1:
+        raise ValueError(f"rescoring needs every control step of the run; {result.path or spec.filename} was "
+                         f"recorded with record_every={spec.record_every}")
+    a = result.arrays
+    missing = [k for k in ("position", "quaternion", "phase", "inspecting") if k not in a]
+    if missing:
+        raise ValueError(f"run {result.path or spec.filename} has no trajectory arrays ({', '.join(missing)})")
+    env = make_env(env_options)
+    try:
+        env.reset(seed=spec.seed)
+        tracker = env.unwrapped.replay_coverage(a["position"], a["quaternion"], a["phase"], ~a["inspecting"])
+    finally:
+        env.close()
+    return {"coverage": float(tracker.coverage), "area_coverage": float(tracker.area_coverage),
+            "counts": np.asarray(tracker.counts)}
+
+
 # ------------------------------------------------------------------ files
 def save_run(result: RunResult, path: str | Path) -> Path:
     """Write the run file atomically (see the module docstring); returns its path."""
