@@ -50,6 +50,9 @@ def test_bad_input_is_a_one_line_error(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "--winds" in err and "'4,x'" in err
     assert not (tmp_path / "a" / "results.md").exists()
+    assert main(["--out", str(tmp_path / "c"), "--rows", "11"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--rows must be between 1 and 10, got 11" in err
     with pytest.raises(ValueError, match="unknown task 'rotor'"):
         run_ablation(tmp_path / "b", task="rotor")
 
@@ -66,4 +69,5 @@ def test_two_rows_fly_and_write_the_study(tmp_path):
     # the lens does not act on the flight: row 1 re-scores row 0's flights instead of flying
     assert cells[1]["rescored"] and not cells[0]["rescored"]
     assert [d.name for d in (tmp_path / "rows").iterdir()] == ["00_paper-faithful"]
-    assert "↻" in (tmp_path / "results.md").read_text()
+    md = (tmp_path / "results.md").read_text()
+    assert "↻" in md and "Only the first 2 of the chain's 10 rows" in md

@@ -145,6 +145,7 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
     t0 = time.perf_counter()
     rows = plan_rows(steps)
     doc = {"scenario": scenario, "task": task, "winds": list(map(float, winds)), "max_time": max_time,
+           "n_rows": len(rows), "of_chain": len(STEPS),
            "wall_time_s": 0.0, "complete": False, "rows": [],
            "paper": {f"{col}@{w:g}": paper_numbers("paper", w, base)
                      for col, base in zip(COLUMNS, ("nmpc", "pampc", "vtnmpc")) for w in winds}}
@@ -213,8 +214,10 @@ def markdown(doc: Mapping[str, Any]) -> str:
              + f"; gust winds {', '.join(f'{w:g}' for w in doc['winds'])} m/s; seed 0. Cells: coverage / SM / CM "
              "in %, minimum distance in m; in brackets the change from the row above (only where it is "
              f"nonzero). Wall time {doc['wall_time_s']:.0f} s.", ""]
+    if doc.get("n_rows", len(STEPS)) < doc.get("of_chain", len(STEPS)):
+        lines += [f"Only the first {doc['n_rows']} of the chain's {doc['of_chain']} rows (`--rows {doc['n_rows']}`).", ""]
     if not doc.get("complete", True):
-        lines += [f"**Incomplete: {len(doc['rows'])} of {len(STEPS)} rows finished** (rerun the same command to "
+        lines += [f"**Incomplete: {len(doc['rows'])} of {doc.get('n_rows', len(STEPS))} rows finished** (rerun the same command to "
                   "resume: finished runs are reused).", ""]
     for w in doc["winds"]:
         lines += [f"## Mean wind {w:g} m/s", "",
@@ -296,14 +299,19 @@ def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
     parser.add_argument("--winds", default="4,7", help="mean wind speeds [m/s] (default 4,7)")
     parser.add_argument("--jobs", type=int, default=None, help="parallel runs (default: the number of cores)")
     parser.add_argument("--max-time", type=float, default=None, help="cap each run at S simulated seconds")
+    parser.add_argument("--rows", type=int, default=None,
+                        help=f"only the first N rows of the chain (1-{len(STEPS)}; default all)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
                         help="format of the ablation figure (default png; pdf and svg are vector)")
     args = parser.parse_args(argv)
     try:
         winds = _floats(args.winds)
+        if args.rows is not None and not 1 <= args.rows <= len(STEPS):
+            raise ValueError(f"--rows must be between 1 and {len(STEPS)}, got {args.rows}")
         doc = run_ablation(args.out, task=args.task, winds=winds, jobs=args.jobs, max_time=args.max_time,
-                           progress=not args.no_progress, figure_format=args.figure_format)
+                           progress=not args.no_progress, figure_format=args.figure_format,
+                           steps=STEPS[:args.rows] if args.rows else STEPS)
     except (ValueError, OutputDirError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
