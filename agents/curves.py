@@ -91,3 +91,51 @@ def write_run_summary(out: Path, summary: Mapping[str, Any], fmt: str = DEFAULT_
         plot_learning_curve(out, Path(out) / "learning_curve.png", fmt=fmt)
     except Exception as exc:  # a figure must never lose a finished run
         print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
+
+
+def route_points(run_dirs: list[str | Path]) -> list[dict[str, float]]:
+    """The periodic evaluations of a training route - one run or a chain of runs each resumed
+    from the one before, whose ``evaluations.json`` count steps and wall time from the start of
+    the route - as points ``env_steps, wall_min, coverage, safety_sm, centering_cm``."""
+    points = []
+    for d in run_dirs:
+        p = Path(d) / "evaluations.json"
+        if not p.is_file():
+            raise ValueError(f"route run {str(d)!r} has no evaluations.json")
+        for e in json.loads(p.read_text()):
+            m = e["mean"]
+            points.append({"env_steps": int(e["env_steps"]), "wall_min": float(e["wall_time_s"]) / 60.0,
+                           **{k: float(m[k]) for k in ("coverage", "safety_sm", "centering_cm")}})
+    return sorted(points, key=lambda q: q["wall_min"])
+
+
+def plot_routes(routes: Mapping[str, list[Mapping[str, float]]], path: str | Path,
+                fmt: str = DEFAULT_FIGURE_FORMAT, target: Mapping[str, float] | None = None) -> Path:
+    """Routes to a policy on one time axis: min(coverage, SM) and CM of each route's evaluations
+    against its training wall time (every stage counted), with the target's thresholds dashed.
+    ``routes``: label -> points of :func:`route_points`. Returns the written path."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.2))
+    for label, pts in routes.items():
+        x = [q["wall_min"] for q in pts]
+        axes[0].plot(x, [min(q["coverage"], q["safety_sm"]) for q in pts], "-o", ms=4, label=label)
+        axes[1].plot(x, [q["centering_cm"] for q in pts], "-o", ms=4, label=label)
+    if target:
+        score = min(target.get("coverage", 1.0), target.get("safety_sm", 1.0))
+        axes[0].axhline(score, ls="--", color="k", lw=1, label=f"target {score:g}")
+        if "centering_cm" in target:
+            axes[1].axhline(target["centering_cm"], ls="--", color="k", lw=1, label=f"target {target['centering_cm']:g}")
+    axes[0].set(xlabel="training wall time [min] (all stages)", ylabel="min(coverage, SM)",
+                title="evaluation on the full mission, 4 m/s")
+    axes[1].set(xlabel="training wall time [min] (all stages)", ylabel="CM",
+                title="centering (over the part flown: a crashed evaluation is short)")
+    axes[1].set_ylim(0.0, 1.02)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    try:
+        return save_figure(fig, path, fmt)
+    finally:
+        plt.close(fig)

@@ -153,3 +153,16 @@ def test_shipped_models_resolve_by_name(tmp_path):
     assert resolve_model_path(str(f)) == f
     with pytest.raises(ValueError, match="neither a file nor a shipped model; shipped: ppo_blade"):
         resolve_model_path("ppo_nothing")
+
+
+def test_route_points_chain_runs_and_the_figure_is_drawn(tmp_path):
+    from agents.curves import plot_routes, route_points
+    _fake_evaluations(tmp_path / "stage1", [(2000, (1.0, 0.9, 0.98))])
+    _fake_evaluations(tmp_path / "stage2", [(3000, (1.0, 1.0, 0.99)), (4000, (1.0, 1.0, 0.996))])
+    pts = route_points([tmp_path / "stage2", tmp_path / "stage1"])
+    assert [p["env_steps"] for p in pts] == [2000, 3000, 4000]        # ordered by time, not by argument
+    assert pts[0]["wall_min"] == pytest.approx(2.0 / 60.0) and pts[0]["safety_sm"] == 0.9
+    out = plot_routes({"a": pts}, tmp_path / "routes.png", target={"coverage": 0.99, "centering_cm": 0.995})
+    assert out.stat().st_size > 1000
+    with pytest.raises(ValueError, match="has no evaluations.json"):
+        route_points([tmp_path / "missing"])

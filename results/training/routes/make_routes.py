@@ -1,0 +1,42 @@
+"""The route comparison of issue 14: every way tried to a full-mission policy, on one time axis.
+
+The training runs live outside the repository (their checkpoints are hundreds of MB); this script
+reads their ``evaluations.json`` (each a periodic evaluation on the full mission at 4 m/s,
+deterministic policy), writes the extracted points to ``routes.json`` and draws ``routes.png``.
+``python results/training/routes/make_routes.py RUNS_ROOT`` with RUNS_ROOT holding the run
+directories named below; ``--from-json`` redraws the figure from the committed ``routes.json``.
+"""
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+from agents.curves import plot_routes, route_points
+from agents.seeds import TARGET
+from wt_inspect_env.atomic_io import write_text_atomic
+
+HERE = Path(__file__).parent
+ROUTES = {
+    "PPO from scratch, full task": ["ppo_scratch"],
+    "behaviour cloning (VT-NMPC+ demos) + PPO": ["bc/seed_0", "bc_ppo"],
+    "behaviour cloning at 25 Hz + DAgger": ["dagger"],
+    "PPO curriculum: surface -> blade -> full -> fine centering": [
+        "ppo_blade_to_full", "ppo_full_2", "ppo_centering", "ppo_centering2", "ppo_centering3"],
+}
+
+
+def main(argv: list[str]) -> int:
+    if argv and argv[0] == "--from-json":
+        routes = json.loads((HERE / "routes.json").read_text())["routes"]
+    else:
+        root = Path(argv[0]) if argv else Path(".")
+        routes = {label: route_points([root / d for d in dirs]) for label, dirs in ROUTES.items()}
+        write_text_atomic(HERE / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
+                                                          indent=1) + "\n")
+    print(plot_routes(routes, HERE / "routes.png", target=TARGET))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
