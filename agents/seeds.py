@@ -8,7 +8,9 @@ with its own progress bar); on Ray (``--ray``; a local Ray instance, or a cluste
 ``--address``, as the evaluation backend) each seed is a task of one CPU and a bar counts the
 finished seeds. ``OUT/seeds.json`` lists, per seed, whether and when (env steps, wall time) it
 reached the target, and ``OUT/learning_curves_seeds.png`` draws every seed's evaluation curve
-with the mean and spread over seeds.
+with the mean and spread over seeds. With several recipes (``--recipe a.json,b.json --seeds ...``)
+every (recipe, seed) run goes into ``OUT/<recipe>/seed_<s>/`` - on Ray all of them at once - each
+recipe gets its own report, and ``OUT/recipes.json`` compares them (:func:`train_recipes`).
 """
 from __future__ import annotations
 
@@ -79,34 +81,36 @@ def _one_seed(kwargs: Mapping[str, Any], seed: int, run: str, progress: bool) ->
     return train(out=run_dir, seed=seed, progress_bar=progress, **kw)
 
 
-def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, address: str | None = None,
-                **train_kwargs: Any) -> dict[str, Any]:
-    """Train every seed (see the module docstring); returns the ``seeds.json`` document.
-    ``figure_format`` (in ``train_kwargs``, as for :func:`agents.training.train`) applies to the
-    seeds' learning curves and the figure over the seeds."""
+def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, address: str | None,
+             progress: bool, n_total: int) -> None:
+    """Train the unfinished ``(train kwargs, seed, run dir)`` jobs: on Ray all at once (one CPU
+    each; a bar counts finished runs), otherwise one after another with their own bars."""
     from tqdm import tqdm
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    todo = [s for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
-    progress = bool(train_kwargs.pop("progress_bar", True))
-    if todo and ray:
+    if jobs and ray:
         import ray as ray_
 
         ray_.init(address=address, ignore_reinit_error=True, include_dashboard=False, log_to_driver=False)
         task = ray_.remote(num_cpus=1)(_one_seed)
-        refs = {task.remote(train_kwargs, s, str(out / f"seed_{s}"), False): s for s in todo}
-        with tqdm(total=len(seeds), initial=len(seeds) - len(todo), desc="seeds", unit="seed", file=sys.stderr) as bar:
-            pending = list(refs)
+        pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
+        with tqdm(total=n_total, initial=n_total - len(jobs), desc="runs", unit="run", file=sys.stderr) as bar:
             while pending:
                 ready, pending = ray_.wait(pending, num_returns=1)
                 ray_.get(ready[0])
                 bar.update(1)
     else:
-        for s in todo:
-            _one_seed(train_kwargs, s, str(out / f"seed_{s}"), progress)
+        for kw, s, run in jobs:
+            _one_seed(kw, s, str(run), progress)
+
+
+def _unfinished(seeds: Sequence[int], out: Path, kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
+    return [(kwargs, s, out / f"seed_{s}") for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
+
+
+def _write_seed_report(seeds: Sequence[int], out: Path, train_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     targets = report_targets(_recipe_target(train_kwargs))
     doc = seed_report(out, seeds, targets, base=base_training(train_kwargs.get("resume")))
     doc["resumed_from"] = None if train_kwargs.get("resume") is None else str(train_kwargs["resume"])
+    doc["recipe"] = None if train_kwargs.get("recipe") is None else str(train_kwargs["recipe"])
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
@@ -114,6 +118,54 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc
+
+
+def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, address: str | None = None,
+                **train_kwargs: Any) -> dict[str, Any]:
+    """Train every seed (see the module docstring); returns the ``seeds.json`` document.
+    ``figure_format`` (in ``train_kwargs``, as for :func:`agents.training.train`) applies to the
+    seeds' learning curves and the figure over the seeds."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    progress = bool(train_kwargs.pop("progress_bar", True))
+    _run_all(_unfinished(seeds, out, train_kwargs), ray=ray, address=address, progress=progress, n_total=len(seeds))
+    return _write_seed_report(seeds, out, train_kwargs)
+
+
+def recipe_names(recipes: Sequence[str | Path]) -> list[str]:
+    """Each recipe's directory name under ``OUT`` (its file stem); ValueError naming ``--recipe``
+    if two recipes share one."""
+    names = [Path(r).stem for r in recipes]
+    dup = sorted({n for n in names if names.count(n) > 1})
+    if dup:
+        raise ValueError(f"--recipe: two recipes would share the directory {dup[0]!r} (same file name); rename one")
+    return names
+
+
+def train_recipes(recipes: Sequence[str | Path], seeds: Sequence[int], out: str | Path, *, ray: bool = False,
+                  address: str | None = None, **train_kwargs: Any) -> dict[str, Any]:
+    """Every recipe with every seed into ``OUT/<recipe name>/seed_<s>/`` - on Ray all the runs at
+    once - each recipe with its ``seeds.json`` and figure, and ``OUT/recipes.json`` comparing them
+    (how many seeds of each reached its target). Finished runs are skipped and unfinished ones
+    resumed, as for :func:`train_seeds`."""
+    from .recipe import load_recipe
+    out = Path(out)
+    names = recipe_names(recipes)
+    for r in recipes:
+        load_recipe(r)            # every recipe checked before any run starts
+    progress = bool(train_kwargs.pop("progress_bar", True))
+    per = {n: {**train_kwargs, "recipe": str(r)} for n, r in zip(names, recipes)}
+    jobs = []
+    for n in names:
+        (out / n).mkdir(parents=True, exist_ok=True)
+        jobs += _unfinished(seeds, out / n, per[n])
+    _run_all(jobs, ray=ray, address=address, progress=progress, n_total=len(seeds) * len(names))
+    docs = {n: _write_seed_report(seeds, out / n, per[n]) for n in names}
+    summary = {"seeds": list(seeds), "recipes": {
+        n: {"recipe": per[n]["recipe"], "target": d["target"], "n_reached": d["n_reached"],
+            "reached_at_env_steps": [r["reached_at_env_steps"] for r in d["seeds"]]} for n, d in docs.items()}}
+    write_text_atomic(out / "recipes.json", json.dumps(summary, indent=1))
+    return {"summary": summary, "recipes": docs}
 
 
 def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, recipe, task: str = "full",

@@ -33,7 +33,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                         "process (SB3 SubprocVecEnv); dummy: single envs in turn in this process")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--recipe", default=None,
-                   help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming)")
+                   help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming); "
+                        "with --seeds, several comma-separated: one run per recipe and seed into OUT/<recipe>/seed_<s>/")
     p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
     p.add_argument("--trust-model", action="store_true",
                    help="WARNING: with --resume (or --seeds resuming unfinished seeds), also load a checkpoint "
@@ -80,6 +81,9 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     if args.ray or args.address:
         print(f"{prog}: error: --ray/--address need --seeds", file=sys.stderr)
         return 2
+    if len(_recipes(args)) > 1:
+        print(f"{prog}: error: several --recipe files need --seeds (one run per recipe and seed)", file=sys.stderr)
+        return 2
     from .training import train   # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
@@ -98,9 +102,29 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     return 0
 
 
+def _recipes(args) -> list[str]:
+    return [r.strip() for r in str(args.recipe).split(",") if r.strip()] if args.recipe else []
+
+
 def _seeds(args, prog: str) -> int:
-    """``--seeds``: one run per seed (see :mod:`agents.seeds`)."""
-    from .seeds import parse_seeds, train_seeds
+    """``--seeds``: one run per seed (see :mod:`agents.seeds`); with several ``--recipe`` files,
+    one run per recipe and seed."""
+    from .seeds import parse_seeds, train_recipes, train_seeds
+    if len(_recipes(args)) > 1:
+        try:
+            seeds = parse_seeds(args.seeds)
+            res = train_recipes(_recipes(args), seeds, args.out, ray=args.ray, address=args.address, algo=args.algo,
+                                task=args.task, timesteps=args.timesteps, n_envs=args.n_envs, resume=args.resume,
+                                max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
+                                progress_bar=not args.no_progress, trust_model=args.trust_model,
+                                figure_format=args.figure_format)
+        except ValueError as exc:
+            print(f"{prog}: error: {exc}", file=sys.stderr)
+            return 2
+        for name, r in res["summary"]["recipes"].items():
+            print(f"{name}: {r['n_reached']} of {len(seeds)} seeds reached its target {r['target']}")
+        print(f"{args.out}/recipes.json, {args.out}/<recipe>/seeds.json")
+        return 0
     try:
         seeds = parse_seeds(args.seeds)
         doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,

@@ -166,3 +166,33 @@ def test_route_points_chain_runs_and_the_figure_is_drawn(tmp_path):
     assert out.stat().st_size > 1000
     with pytest.raises(ValueError, match="has no evaluations.json"):
         route_points([tmp_path / "missing"])
+
+
+@pytest.mark.slow
+def test_several_recipes_with_seeds_each_get_a_report_and_the_comparison(tmp_path):
+    from agents.seeds import train_recipes
+    a = _tiny_recipe_file(tmp_path)
+    data = json.loads(Path(a).read_text())
+    data["algo_kwargs"]["n_epochs"] = 2
+    b = tmp_path / "tiny_b.json"
+    b.write_text(json.dumps(data))
+    res = train_recipes([a, str(b)], [0], tmp_path / "out", algo="ppo", task="surface", timesteps=300, n_envs=1,
+                        progress_bar=False)
+    assert set(res["summary"]["recipes"]) == {"tiny", "tiny_b"}
+    for name in ("tiny", "tiny_b"):
+        doc = json.loads((tmp_path / "out" / name / "seeds.json").read_text())
+        assert doc["recipe"].endswith(f"{name}.json") and (tmp_path / "out" / name / "seed_0" / "model.zip").is_file()
+    saved = json.loads((tmp_path / "out" / "recipes.json").read_text())
+    assert saved["seeds"] == [0] and saved["recipes"]["tiny_b"]["recipe"] == str(b)
+
+
+def test_several_recipes_need_seeds_and_distinct_names(tmp_path, capsys):
+    from agents.train_cli import main
+    a = _tiny_recipe_file(tmp_path)
+    assert main(["--algo", "ppo", "--timesteps", "10", "--out", str(tmp_path / "o"), "--recipe", f"{a},{a}"]) == 2
+    assert "several --recipe files need --seeds" in capsys.readouterr().err
+    assert main(["--algo", "ppo", "--timesteps", "10", "--out", str(tmp_path / "o"), "--recipe", f"{a},{a}",
+                 "--seeds", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "would share the directory 'tiny'" in err
+    assert not (tmp_path / "o" / "tiny").exists()
