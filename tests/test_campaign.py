@@ -72,6 +72,9 @@ def test_two_episode_campaign_writes_everything(tmp_path) -> None:
     assert "QP fallbacks" in (out / "results.md").read_text() and (out / "campaign.png").is_file()
     again = cp.run_campaign(cfg, out, jobs=1, progress=False)   # resumed from the run files
     assert again["summary"]["steps"] == 60 and again["wall_time_s"] < doc["wall_time_s"]
+    # the resumed campaign reports the cost of both invocations
+    assert again["wall_time_total_s"] == pytest.approx(doc["wall_time_s"] + again["wall_time_s"])
+    assert f"{again['wall_time_total_s']:.1f} s over every invocation" in (out / "results.md").read_text()
 
 
 def test_a_start_drawn_inside_the_turbine_gets_a_new_direction_deterministically() -> None:

@@ -259,7 +259,7 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Mapping[str, Any]],
-              command: str, wall: float) -> str:
+              command: str, wall: float, wall_total: float | None = None) -> str:
     s = summary
     lines = [f"# Robustness campaign: {cfg.controller}, {s['episodes']} episodes", "",
              f"`{command}`" if command else "", "",
@@ -281,7 +281,8 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
              f"({s['rss_slope_after_warmup_mb_per_episode']:+.3f} after its first {RSS_WARMUP_EPISODES}) | flat |",
              f"| starts redrawn (drawn within {START_CLEARANCE_RATIO:.2f} d_ref of the turbine) | {s['start_redraws']} "
              "| - |",
-             f"| wall time | {wall:.1f} s ({s['wall_time_per_episode_s']:.1f} s per episode in a worker) | - |", "",
+             f"| wall time | {wall_total if wall_total is not None else wall:.1f} s over every invocation, "
+             f"{wall:.1f} s in the last ({s['wall_time_per_episode_s']:.1f} s per episode in a worker) | - |", "",
              "Terminations: " + ", ".join(f"{k or 'none'} {v}" for k, v in s["terminations"].items()), "",
              "| # | wind | tower / blade | azimuth | offset | end | coverage | SM | fallbacks | RSS | error |",
              "|---:|---:|---|---:|---:|---|---:|---:|---:|---:|---|"]
@@ -344,6 +345,7 @@ def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local"
                                cfg.max_time, cfg.record_every))
     by_file = {s.filename: d for s, d in zip(specs, draws)}
     out_dir = prepare_out_dir(out)
+    earlier_wall = _earlier_wall_time(out_dir / "campaign.json", cfg)
     results: dict[str, RunResult] = {}
     todo = []
     for s in specs:
@@ -374,7 +376,8 @@ def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local"
         summary = summarise(rows)
         wall = time.perf_counter() - t0
         doc = {"format": "wt-inspect-campaign/1", "config": cfg.__dict__, "command": command,
-               "complete": len(rows) == len(specs), "wall_time_s": wall, "summary": summary,
+               "complete": len(rows) == len(specs), "wall_time_s": wall,
+               "wall_time_total_s": earlier_wall + wall, "summary": summary,
                "episodes": rows, "draws": draws}
         try:
             buf = io.StringIO()
@@ -383,13 +386,27 @@ def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local"
             w.writerows(rows)
             write_text_atomic(out_dir / "episodes.csv", buf.getvalue())
             write_text_atomic(out_dir / "campaign.json", json.dumps(doc, indent=1, default=float) + "\n")
-            write_text_atomic(out_dir / "results.md", _markdown(cfg, summary, rows, command, wall))
+            write_text_atomic(out_dir / "results.md", _markdown(cfg, summary, rows, command, wall,
+                                                                earlier_wall + wall))
             if figure and rows:
                 doc["figure"] = str(_figure(rows, out_dir / "campaign.png"))
         except OSError as exc:
             raise OutputDirError(f"cannot write the campaign results to {str(out_dir)!r}: "
                                  f"{exc.strerror or exc}") from None
     return doc
+
+
+def _earlier_wall_time(path: Path, cfg: CampaignConfig) -> float:
+    """Wall time of the earlier invocations of the same campaign in ``out`` (0 for a new one), so
+    a resumed campaign reports its whole cost, not only its last invocation's."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return 0.0
+    if not isinstance(doc, dict) or doc.get("config") != json.loads(json.dumps(cfg.__dict__, default=float)):
+        return 0.0
+    v = doc.get("wall_time_total_s", doc.get("wall_time_s", 0.0))
+    return float(v) if isinstance(v, (int, float)) and math.isfinite(v) and v >= 0 else 0.0
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
