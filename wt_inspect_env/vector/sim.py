@@ -37,7 +37,7 @@ import pybullet as p
 
 from ..quadrotor import QuadrotorParams
 from ..pybullet_refs import call_releasing
-from ..rate_control import Mixer, RateController, RateGains
+from ..rate_control import Mixer, RateController, RateGains, mix_saturated
 from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_plant, checked_state,
                    create_drone_body, new_client, place_body)
 from ..wind import WindField, wind_velocities
@@ -317,11 +317,10 @@ class BatchedQuadrotorSim:
             ok = ((f_lo <= c0) & (c0 <= f_hi) & (f_lo <= c1) & (c1 <= f_hi) & (f_lo <= c2) & (c2 <= f_hi)
                   & (f_lo <= c3) & (c3 <= f_hi))
             self.saturation[:, ok] = 0
-            if not ok.all():   # the rare saturated drones take the scalar desaturating mixer
-                mixer = self.mixer
-                for i in np.flatnonzero(~ok).tolist():
-                    c0[i], c1[i], c2[i], c3[i] = mixer.mix(float(T[i]), float(tx[i]), float(ty[i]), float(tz[i]))
-                    self.saturation[:, i] = mixer.saturation
+            if not ok.all():   # the saturated drones take the desaturating mixer, batched
+                idx = np.flatnonzero(~ok)
+                (c0[idx], c1[idx], c2[idx], c3[idx]), self.saturation[:, idx] = mix_saturated(
+                    self.mixer, T[idx], tx[idx], ty[idx], tz[idx])
             g0 = f0 + beta * (c0 - f0)
             g1 = f1 + beta * (c1 - f1)
             g2 = f2 + beta * (c2 - f2)
