@@ -243,8 +243,9 @@ def markdown(doc: Mapping[str, Any]) -> str:
     if any(c.get("rescored") for row in doc["rows"] for c in row["cells"].values()):
         lines += ["↻: not flown again - the flight of the row above re-scored under this row's camera and coverage "
                   "rule (neither acts on the flight; `wt_inspect.evaluation.runner.rescore_coverage`).", ""]
+    timed_out = any(c["termination"] == "time_limit" for row in doc["rows"] for c in row["cells"].values())
     lines += (["⏱: the run hit its time limit (the closed-loop reference waited for a drone blown off its pose).",
-               ""] if not doc["max_time"] else []) + ["Rows (see `wt_inspect/ablation.py`): " + "; ".join(
+               ""] if timed_out and not doc["max_time"] else []) + ["Rows (see `wt_inspect/ablation.py`): " + "; ".join(
                   f"{i} {r['key']}: env {json.dumps(r['env'], sort_keys=True)}" for i, r in enumerate(doc["rows"])
                   if i in (0, len(doc["rows"]) - 1)) + ".", ""]
     return "\n".join(lines)
