@@ -70,3 +70,29 @@ def test_a_thinned_run_is_refused(flown):
             env.unwrapped.replay_coverage(np.zeros((3, 3)), np.tile([0, 0, 0, 1.0], (3, 1)), np.ones(2), np.zeros(3))
         finally:
             env.close()
+
+
+def test_rescore_command_prints_writes_csv_and_refuses_bad_input(flown, tmp_path, capsys):
+    import csv
+
+    from wt_inspect.cli import main
+    from wt_inspect.evaluation.runner import save_run
+    run = save_run(flown, tmp_path / "runs" / flown.spec.filename)
+    out = tmp_path / "rescored.csv"
+    assert main(["rescore", str(tmp_path), "--camera", '{"focal_length_mm": 24}', "--occlusion", "on",
+                 "--out", str(out)]) == 0
+    expected = rescore_coverage(flown, {**flown.spec.env_options, "occlusion": True,
+                                        "camera": {**flown.spec.env_options["camera"], "focal_length_mm": 24.0}})
+    rows = list(csv.DictReader(out.open()))
+    assert [r["run_file"] for r in rows] == [run.name]
+    assert float(rows[0]["coverage_rescored"]) == expected["coverage"]
+    assert float(rows[0]["coverage_flown"]) == flown.metrics["coverage"]
+    assert f"{100 * expected['coverage']:.1f} % re-scored" in capsys.readouterr().out
+    for argv, msg in ((["rescore", str(run)], "nothing to change"),
+                      (["rescore", str(tmp_path / "nope"), "--occlusion", "on"], "neither a run file nor a directory"),
+                      (["rescore", str(run), "--camera", "{oops"], "--camera must be a JSON object"),
+                      (["rescore", str(run), "--camera", '{"focal": 3}'], "unknown camera option(s) ['focal']"),
+                      (["rescore", str(run), "--occlusion", "on", "--out", str(tmp_path)], "is a directory")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and msg in err, (argv, err)
