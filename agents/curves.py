@@ -93,6 +93,17 @@ def write_run_summary(out: Path, summary: Mapping[str, Any], fmt: str = DEFAULT_
         print(f"warning: learning curve not drawn: {exc}", file=sys.stderr)
 
 
+def draw_targets(axes, targets: Mapping[str, Mapping[str, float]], colors=("g", "tab:orange", "tab:purple")) -> None:
+    """Dashed threshold lines on a (min(coverage, SM), CM) pair of axes, one colour per named target."""
+    for (name, t), color in zip(targets.items(), colors):
+        label = f"{name} target" if name else "target"
+        score_min = min((t[k] for k in ("coverage", "safety_sm") if k in t), default=None)
+        if score_min is not None:
+            axes[0].axhline(score_min, ls="--", color=color, lw=1, label=f"{label} {score_min:g}")
+        if "centering_cm" in t:
+            axes[1].axhline(t["centering_cm"], ls="--", color=color, lw=1, label=f"{label} {t['centering_cm']:g}")
+
+
 def route_points(run_dirs: list[str | Path]) -> list[dict[str, float]]:
     """The periodic evaluations of a training route - one run or a chain of runs each resumed
     from the one before, whose ``evaluations.json`` count steps and wall time from the start of
@@ -124,10 +135,7 @@ def plot_routes(routes: Mapping[str, list[Mapping[str, float]]], path: str | Pat
         axes[0].plot(x, [min(q["coverage"], q["safety_sm"]) for q in pts], "-o", ms=4, label=label)
         axes[1].plot(x, [q["centering_cm"] for q in pts], "-o", ms=4, label=label)
     if target:
-        score = min(target.get("coverage", 1.0), target.get("safety_sm", 1.0))
-        axes[0].axhline(score, ls="--", color="k", lw=1, label=f"target {score:g}")
-        if "centering_cm" in target:
-            axes[1].axhline(target["centering_cm"], ls="--", color="k", lw=1, label=f"target {target['centering_cm']:g}")
+        draw_targets(axes, {"": target}, ("k",))
     axes[0].set(xlabel="training wall time [min] (all stages)", ylabel="min(coverage, SM)",
                 title="evaluation on the full mission, 4 m/s")
     axes[1].set(xlabel="training wall time [min] (all stages)", ylabel="CM",

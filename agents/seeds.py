@@ -256,12 +256,8 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
             m, sd = ys.mean(0), ys.std(0)
             ax.plot(grid, m, color="k", lw=2, label="mean over seeds")
             ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
-    for (name, t), color in zip((targets or {"mission": TARGET}).items(), ("g", "tab:orange", "tab:purple")):
-        score_min = min((t[k] for k in ("coverage", "safety_sm") if k in t), default=None)
-        if score_min is not None:
-            axes[0].axhline(score_min, ls="--", color=color, lw=1, label=f"{name} target {score_min:g}")
-        if "centering_cm" in t:
-            axes[1].axhline(t["centering_cm"], ls="--", color=color, lw=1, label=f"{name} target {t['centering_cm']:g}")
+    from .curves import draw_targets
+    draw_targets(axes, targets or {"mission": TARGET})
     axes[0].set(xlabel="env steps", ylabel="min(coverage, SM)", title="evaluation score")
     axes[1].set(xlabel="env steps", ylabel="CM", title="centering")
     axes[0].legend(fontsize=7)

@@ -106,6 +106,14 @@ def _recipes(args) -> list[str]:
     return [r.strip() for r in str(args.recipe).split(",") if r.strip()] if args.recipe else []
 
 
+def _seed_run_kwargs(args) -> dict:
+    """What every run of a ``--seeds`` sweep gets from the command line (the recipe aside)."""
+    return dict(ray=args.ray, address=args.address, algo=args.algo, task=args.task, timesteps=args.timesteps,
+                n_envs=args.n_envs, resume=args.resume, max_minutes=args.max_minutes, verbose=args.verbose,
+                backend=args.backend, progress_bar=not args.no_progress, trust_model=args.trust_model,
+                figure_format=args.figure_format)
+
+
 def _seeds(args, prog: str) -> int:
     """``--seeds``: one run per seed (see :mod:`agents.seeds`); with several ``--recipe`` files,
     one run per recipe and seed."""
@@ -113,11 +121,7 @@ def _seeds(args, prog: str) -> int:
     if len(_recipes(args)) > 1:
         try:
             seeds = parse_seeds(args.seeds)
-            res = train_recipes(_recipes(args), seeds, args.out, ray=args.ray, address=args.address, algo=args.algo,
-                                task=args.task, timesteps=args.timesteps, n_envs=args.n_envs, resume=args.resume,
-                                max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
-                                progress_bar=not args.no_progress, trust_model=args.trust_model,
-                                figure_format=args.figure_format)
+            res = train_recipes(_recipes(args), seeds, args.out, **_seed_run_kwargs(args))
         except ValueError as exc:
             print(f"{prog}: error: {exc}", file=sys.stderr)
             return 2
@@ -127,11 +131,7 @@ def _seeds(args, prog: str) -> int:
         return 0
     try:
         seeds = parse_seeds(args.seeds)
-        doc = train_seeds(seeds, args.out, ray=args.ray, address=args.address, algo=args.algo, task=args.task,
-                          timesteps=args.timesteps, n_envs=args.n_envs, recipe=args.recipe, resume=args.resume,
-                          max_minutes=args.max_minutes, verbose=args.verbose, backend=args.backend,
-                          progress_bar=not args.no_progress, trust_model=args.trust_model,
-                          figure_format=args.figure_format)
+        doc = train_seeds(seeds, args.out, recipe=args.recipe, **_seed_run_kwargs(args))
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

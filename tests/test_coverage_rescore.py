@@ -90,7 +90,7 @@ def test_rescore_command_prints_writes_csv_and_refuses_bad_input(flown, tmp_path
     assert f"{100 * expected['coverage']:.1f} % re-scored" in capsys.readouterr().out
     for argv, msg in ((["rescore", str(run)], "nothing to change"),
                       (["rescore", str(tmp_path / "nope"), "--occlusion", "on"], "neither a run file nor a directory"),
-                      (["rescore", str(run), "--camera", "{oops"], "--camera must be a JSON object"),
+                      (["rescore", str(run), "--camera", "{oops"], "--camera must be JSON"),
                       (["rescore", str(run), "--camera", '{"focal": 3}'], "unknown camera option(s) ['focal']"),
                       (["rescore", str(run), "--occlusion", "on", "--out", str(tmp_path)], "is a directory")):
         assert main(argv) == 2, argv

@@ -19,12 +19,12 @@ from __future__ import annotations
 import argparse
 import csv
 import io
-import json
 import sys
 from pathlib import Path
 from typing import Any, Mapping
 
 from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.commands.args import json_object
 
 from ..evaluation.runner import load_run, rescore_coverage
 
@@ -64,12 +64,9 @@ def _camera(text: str | None) -> dict[str, Any]:
     if not text:
         return {}
     try:
-        value = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--camera must be a JSON object of CameraConfig fields, got {text!r} ({exc.msg})") from None
-    if not isinstance(value, dict):
-        raise ValueError(f"--camera must be a JSON object of CameraConfig fields, got {text!r}")
-    return value
+        return json_object("--camera")(text)
+    except argparse.ArgumentTypeError as exc:
+        raise ValueError(str(exc)) from None
 
 
 def main(argv: list[str], prog: str = "wt-inspect rescore") -> int:
