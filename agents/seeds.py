@@ -114,7 +114,7 @@ def _write_seed_report(seeds: Sequence[int], out: Path, train_kwargs: Mapping[st
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
-                         targets=targets)
+                         targets=targets, base_steps=doc["base"]["env_steps"])
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc
@@ -229,10 +229,12 @@ def seed_report(out: Path, seeds: Sequence[int],
 
 
 def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png",
-                     targets: Mapping[str, Mapping[str, float]] | None = None) -> Path:
+                     targets: Mapping[str, Mapping[str, float]] | None = None, base_steps: int = 0) -> Path:
     """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std, with
     each target's thresholds as dashed lines, as ``fmt`` (png, pdf, svg; ``path``'s suffix is
-    replaced by it). Returns the written path."""
+    replaced by it). ``base_steps``: a fine-tune stage's base model's steps, subtracted so the axis
+    counts this stage's steps. The mean and spread cover the steps every seed has evaluated from
+    (nothing extrapolated before a seed's first evaluation). Returns the written path."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -243,14 +245,14 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
         evals = _evaluations(out / f"seed_{s}")
         if not evals:
             continue
-        x = np.array([e["env_steps"] for e in evals], float)
+        x = np.array([e["env_steps"] for e in evals], float) - base_steps
         score = np.array([min(e["mean"]["coverage"], e["mean"]["safety_sm"]) for e in evals])
         cm = np.array([e["mean"]["centering_cm"] for e in evals])
         curves.append((x, score, cm))
         axes[0].plot(x, score, alpha=0.35, lw=1, label=f"seed {s}")
         axes[1].plot(x, cm, alpha=0.35, lw=1)
     if curves:
-        grid = np.linspace(0, max(c[0].max() for c in curves), 50)
+        grid = np.linspace(max(c[0].min() for c in curves), max(c[0].max() for c in curves), 50)
         for ax, k in ((axes[0], 1), (axes[1], 2)):
             ys = np.array([np.interp(grid, c[0], c[k]) for c in curves])
             m, sd = ys.mean(0), ys.std(0)
@@ -258,8 +260,9 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
             ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
     from .curves import draw_targets
     draw_targets(axes, targets or {"mission": TARGET})
-    axes[0].set(xlabel="env steps", ylabel="min(coverage, SM)", title="evaluation score")
-    axes[1].set(xlabel="env steps", ylabel="CM", title="centering")
+    xlabel = "env steps in this stage" if base_steps else "env steps"
+    axes[0].set(xlabel=xlabel, ylabel="min(coverage, SM)", title="evaluation score")
+    axes[1].set(xlabel=xlabel, ylabel="CM", title="centering")
     axes[0].legend(fontsize=7)
     if axes[1].get_legend_handles_labels()[0]:
         axes[1].legend(fontsize=7)
