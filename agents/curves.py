@@ -25,6 +25,12 @@ def _smooth(y: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
+def read_evaluations(run_dir: str | Path) -> list[dict[str, Any]]:
+    """A run's periodic evaluations (``evaluations.json``; none yet: an empty list)."""
+    p = Path(run_dir) / "evaluations.json"
+    return json.loads(p.read_text()) if p.is_file() else []
+
+
 def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0.9,
                         fmt: str = DEFAULT_FIGURE_FORMAT) -> Path:
     """Two panels against simulator steps: periodic evaluation (coverage, SM, CM of the
@@ -36,10 +42,7 @@ def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0
     import matplotlib.pyplot as plt
 
     run_dir = Path(run_dir)
-    evals = []
-    ep_file = run_dir / "evaluations.json"
-    if ep_file.is_file():
-        evals = json.loads(ep_file.read_text())
+    evals = read_evaluations(run_dir)
     rows = []
     csv_file = run_dir / "episodes.csv"
     if csv_file.is_file():
@@ -110,10 +113,9 @@ def route_points(run_dirs: list[str | Path]) -> list[dict[str, float]]:
     the route - as points ``env_steps, wall_min, coverage, safety_sm, centering_cm``."""
     points = []
     for d in run_dirs:
-        p = Path(d) / "evaluations.json"
-        if not p.is_file():
+        if not (Path(d) / "evaluations.json").is_file():
             raise ValueError(f"route run {str(d)!r} has no evaluations.json")
-        for e in json.loads(p.read_text()):
+        for e in read_evaluations(d):
             m = e["mean"]
             points.append({"env_steps": int(e["env_steps"]), "wall_min": float(e["wall_time_s"]) / 60.0,
                            **{k: float(m[k]) for k in ("coverage", "safety_sm", "centering_cm")}})

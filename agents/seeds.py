@@ -24,6 +24,8 @@ import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
 
+from .curves import draw_targets, read_evaluations
+
 TARGET = {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995}   # the full-mission target of the issue
 
 
@@ -185,9 +187,6 @@ def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, r
     return doc
 
 
-def _evaluations(run: Path) -> list[dict[str, Any]]:
-    p = run / "evaluations.json"
-    return json.loads(p.read_text()) if p.is_file() else []
 
 
 def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> bool:
@@ -207,7 +206,7 @@ def seed_report(out: Path, seeds: Sequence[int],
     base = dict(base or {"env_steps": 0, "wall_time_s": 0.0})
     rows = []
     for s in seeds:
-        evals = _evaluations(out / f"seed_{s}")
+        evals = read_evaluations(out / f"seed_{s}")
         row: dict[str, Any] = {"seed": s, "evaluations": len(evals), "final": evals[-1]["mean"] if evals else None,
                                "targets": {}}
         for name, target in targets.items():
@@ -242,7 +241,7 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
     curves = []
     for s in seeds:
-        evals = _evaluations(out / f"seed_{s}")
+        evals = read_evaluations(out / f"seed_{s}")
         if not evals:
             continue
         x = np.array([e["env_steps"] for e in evals], float) - base_steps
@@ -258,7 +257,6 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
             m, sd = ys.mean(0), ys.std(0)
             ax.plot(grid, m, color="k", lw=2, label="mean over seeds")
             ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
-    from .curves import draw_targets
     draw_targets(axes, targets or {"mission": TARGET})
     xlabel = "env steps in this stage" if base_steps else "env steps"
     axes[0].set(xlabel=xlabel, ylabel="min(coverage, SM)", title="evaluation score")

@@ -63,6 +63,9 @@ def test_a_thinned_run_is_refused(flown):
     thin = evaluate_policy("vtnmpc", scenario="paper-faithful-surface", wind=4.0, max_time=0.05, record_every=2)
     with pytest.raises(ValueError, match="record_every=2"):
         rescore_coverage(thin, thin.spec.env_options)
+    # options that change the flight itself cannot be answered by re-scoring
+    with pytest.raises(ValueError, match="differ from the run's beyond camera, occlusion"):
+        rescore_coverage(flown, {**flown.spec.env_options, "ctrl_hz": 100.0})
     with pytest.raises(ValueError, match="phase must have one entry per row"):
         env = make_env(flown.spec.env_options)
         try:

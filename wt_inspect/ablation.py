@@ -29,7 +29,7 @@ row    change                    what
 
 A (environment, controller) pair already flown by an earlier row is not flown again: rows 5-9 only
 fly the column that changed. Rows that change only the camera or the coverage rule (1 and 2:
-:data:`COVERAGE_ONLY_KEYS`) are not flown either: neither acts on the flight, so the previous
+:data:`~wt_inspect.evaluation.runner.COVERAGE_KEYS`) are not flown either: neither acts on the flight, so the previous
 row's recorded flights are re-scored under the new camera and rule
 (:func:`~wt_inspect.evaluation.runner.rescore_coverage`, per-triangle identical to flying them -
 tested), which saves a third of the study's flights. Each row's runs go through :func:`~wt_inspect.evaluation.run_evaluation`
@@ -53,7 +53,7 @@ from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_figure
 
 from .evaluation import OutputDirError, prepare_out_dir, run_evaluation
-from .evaluation.runner import load_run, rescore_coverage
+from .evaluation.runner import flight_key, load_run, rescore_coverage
 from .evaluation.scenarios import env_options, get_scenario, paper_numbers
 
 COLUMNS = ("NMPC", "PAMPC", "VT-NMPC")
@@ -107,27 +107,14 @@ def plan_rows(steps: Sequence[AblationStep] = STEPS) -> list[dict[str, Any]]:
     return rows
 
 
-#: environment options that change only what counts as seen, not the flight
-COVERAGE_ONLY_KEYS = ("camera", "occlusion")
-
-
 def _env_key(env: Mapping[str, Any]) -> str:
     return json.dumps(env, sort_keys=True)
-
-
-def _flight_key(env: Mapping[str, Any]) -> str:
-    return _env_key({k: v for k, v in env.items() if k not in COVERAGE_ONLY_KEYS})
 
 
 def _rescored_row(row: Mapping[str, Any], run_path: Path, scenario: str, env: Mapping[str, Any]) -> dict[str, Any]:
     """``row`` of a flown run with the coverage of its frames under ``env``'s camera and rule."""
     t0 = time.perf_counter()
-    result = load_run(run_path)
-    opts = env_options(scenario, float(row["wind"]), overrides=env)
-    if _flight_key(opts) != _flight_key(result.spec.env_options):
-        raise ValueError(f"cannot re-score {run_path}: its flight options differ from the row's beyond "
-                         f"{', '.join(COVERAGE_ONLY_KEYS)}")
-    score = rescore_coverage(result, opts)
+    score = rescore_coverage(load_run(run_path), env_options(scenario, float(row["wind"]), overrides=env))
     return {**row, "coverage": score["coverage"], "wall_time": time.perf_counter() - t0, "rescored": True}
 
 
@@ -162,7 +149,7 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
 
     try:
         for i, row in enumerate(rows):
-            ek, fk = _env_key(row["env"]), _flight_key(row["env"])
+            ek, fk = _env_key(row["env"]), flight_key(row["env"])
             new = sorted({c for c in row["controllers"].values()
                           if any((fk, c, float(w)) not in flights for w in winds)})
             if new:

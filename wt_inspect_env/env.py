@@ -143,7 +143,7 @@ class WindTurbineInspectionEnv(gym.Env):
         ins = self.mission.inspected
         self.visibility = TriangleVisibility(self.camera, t0.blade_vertices[ins], t0.blade_normals[ins], occluder)
         self.n_triangles = len(self.mission.inspected)
-        self.coverage = CoverageTracker(self.n_triangles, areas=t0.blade_areas[self.mission.inspected])
+        self.coverage = self._coverage_tracker()
         self.metrics = MetricAccumulator(self.n_triangles, MetricsConfig(
             d_ref=cfg.standoff, safety_margin=cfg.safety_margin, pixel_ifov_rad=cfg.camera.ifov_rad))
         self.reference = InspectionReference(
@@ -354,6 +354,10 @@ class WindTurbineInspectionEnv(gym.Env):
             self._geometry_index = index
         self._phase_index = index
 
+    def _coverage_tracker(self) -> CoverageTracker:
+        """An empty tracker of the mission's inspected triangles (their areas for area coverage)."""
+        return CoverageTracker(self.n_triangles, areas=self.mission.turbines[0].blade_areas[self.mission.inspected])
+
     def replay_coverage(self, position: np.ndarray, quaternion: np.ndarray, phase: np.ndarray,
                         waiting: np.ndarray) -> CoverageTracker:
         """Coverage of a recorded flight under *this* env's camera and coverage rule, without flying.
@@ -367,8 +371,8 @@ class WindTurbineInspectionEnv(gym.Env):
         change (``info["phase"]``, ``info["waiting_for_phase_change"]``). Frames are taken where
         :meth:`step` takes them (row 0 and every ``ctrl_hz / camera_hz``-th row), with the geometry
         the env used there: the next phase's (turned rotor) from the start of a phase-change hold. Call after
-        :meth:`reset` with the flight's seed (for randomised turbines); it leaves the env's own
-        coverage reset and returns a new tracker.
+        :meth:`reset` with the flight's seed (for randomised turbines); the env's own coverage is
+        not touched, the frames go into a new tracker, which is returned.
         """
         pos = check_array("position", position, (None, 3))
         quat = check_array("quaternion", quaternion, (len(pos), 4))
@@ -377,7 +381,7 @@ class WindTurbineInspectionEnv(gym.Env):
             if arr.shape != (len(pos),):
                 raise ValueError(f"{name} must have one entry per row ({len(pos)}), got shape {arr.shape}")
         geometry = ph.astype(np.int64) - 1 + wait.astype(bool)     # as step(): the turn starts with the hold
-        tracker = CoverageTracker(self.n_triangles, areas=self.mission.turbines[0].blade_areas[self.mission.inspected])
+        tracker = self._coverage_tracker()
         rows = [0] + list(range(self._camera_every, len(pos), self._camera_every))
         try:
             for k in rows:

@@ -391,16 +391,30 @@ def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
         env.close()
 
 
+#: environment options that change only what counts as seen, not the flight
+COVERAGE_KEYS = ("camera", "occlusion")
+
+
+def flight_key(env_options: Mapping[str, Any]) -> str:
+    """The options that decide the flight, as one comparable string (all but :data:`COVERAGE_KEYS`;
+    JSON, so a run file's lists equal the tuples they were made from)."""
+    return json.dumps({k: v for k, v in env_options.items() if k not in COVERAGE_KEYS}, sort_keys=True,
+                      default=_json_default)
+
+
 def rescore_coverage(result: RunResult, env_options: Mapping[str, Any]) -> dict[str, Any]:
     """Coverage of a recorded run under other camera / coverage-rule options, without flying it.
 
     ``env_options``: the run's own options with only the camera or the coverage rule changed
-    (``camera``, ``occlusion``); the flight does not depend on them, so the run's frames are
-    re-scored (:meth:`~wt_inspect_env.env.InspectionEnv.replay_coverage`). Needs the run's full
-    trajectory (``record_every=1``). Returns ``coverage``, ``area_coverage`` and the
-    per-triangle ``counts``.
+    (:data:`COVERAGE_KEYS`; ValueError if anything else differs); the flight does not depend on
+    them, so the run's frames are re-scored
+    (:meth:`~wt_inspect_env.env.InspectionEnv.replay_coverage`). Needs the run's full trajectory
+    (``record_every=1``). Returns ``coverage``, ``area_coverage`` and the per-triangle ``counts``.
     """
     spec = result.spec
+    if flight_key(env_options) != flight_key(spec.env_options):
+        raise ValueError(f"cannot re-score {result.path or spec.filename}: the options differ from the run's beyond "
+                         f"{', '.join(COVERAGE_KEYS)}")
     if spec.record_every != 1:
         raise ValueError(f"rescoring needs every control step of the run; {result.path or spec.filename} was "
                          f"recorded with record_every={spec.record_every}")
