@@ -46,6 +46,8 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
                    "finished seeds are skipped, unfinished ones resume from their latest checkpoint")
     p.add_argument("--ray", action="store_true", help="with --seeds: run the seeds as Ray tasks (one CPU each)")
     p.add_argument("--address", default=None, help="with --ray: address of a Ray cluster (default: a local instance)")
+    p.add_argument("--eval-every", type=int, default=None,
+                   help="simulator steps between periodic evaluations (default: the recipe's eval_every_env_steps)")
     p.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this wall time")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
@@ -87,7 +89,7 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     from .training import train   # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
-                        resume=args.resume, seed=args.seed, max_minutes=args.max_minutes,
+                        resume=args.resume, seed=args.seed, max_minutes=args.max_minutes, eval_every=args.eval_every,
                         progress_bar=not args.no_progress, verbose=args.verbose, backend=args.backend,
                         trust_model=args.trust_model, figure_format=args.figure_format)
     except ValueError as exc:
@@ -110,6 +112,7 @@ def _seed_run_kwargs(args) -> dict:
     """What every run of a ``--seeds`` sweep gets from the command line (the recipe aside)."""
     return dict(ray=args.ray, address=args.address, algo=args.algo, task=args.task, timesteps=args.timesteps,
                 n_envs=args.n_envs, resume=args.resume, max_minutes=args.max_minutes, verbose=args.verbose,
+                eval_every=args.eval_every,
                 backend=args.backend, progress_bar=not args.no_progress, trust_model=args.trust_model,
                 figure_format=args.figure_format)
 

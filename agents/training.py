@@ -24,6 +24,7 @@ env's ``info["metrics"]``. The best model is the one whose mean ``min(coverage, 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -342,7 +343,8 @@ def _positive_int(name: str, value: Any) -> int:
 def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
           recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
           max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
-          backend: str = "vector", trust_model: bool = False, figure_format: str = "png") -> dict[str, Any]:
+          backend: str = "vector", trust_model: bool = False, figure_format: str = "png",
+          eval_every: int | None = None) -> dict[str, Any]:
     """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
 
     ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
@@ -352,7 +354,10 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     this much wall time has passed in this call. ``trust_model``: resume from a checkpoint even if
     loading it runs code from it (a zip that needs unpickling, or an old ``.vecnormalize.pkl``);
     without it such a checkpoint is a ValueError before anything is written. ``figure_format``: of
-    the learning curve (png, pdf, svg).
+    the learning curve (png, pdf, svg). ``eval_every``: simulator steps between the periodic
+    evaluations, overriding the recipe's ``eval_every_env_steps`` (a study over seeds wants a denser
+    learning curve than a production run; the policy's training does not depend on it) - the run's
+    ``recipe.json`` records the value used.
     """
     check_choice("algorithm", algo, ALGOS)
     check_figure_format(figure_format)
@@ -393,6 +398,8 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         rec = load_recipe(default_recipe_path(algo))
     if rec.algo != algo:
         raise ValueError(f"recipe is for algorithm {rec.algo!r}, not {algo!r}")
+    if eval_every is not None:
+        rec = dataclasses.replace(rec, eval_every_env_steps=_positive_int("eval_every", eval_every))
     if ckpt_doc is not None and AgentSpec.from_dict(ckpt_doc["spec"]) != rec.spec:
         raise ValueError("the recipe's agent spec differs from the checkpoint's (features/action/repeat "
                          "must stay the same to resume)")

@@ -196,3 +196,18 @@ def test_several_recipes_need_seeds_and_distinct_names(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "would share the directory 'tiny'" in err
     assert not (tmp_path / "o" / "tiny").exists()
+
+
+@pytest.mark.slow
+def test_eval_every_overrides_the_recipes_cadence_and_is_recorded(tmp_path):
+    from agents.training import train
+    recipe = _tiny_recipe_file(tmp_path)          # evaluates every 300 steps
+    train("ppo", "surface", 600, 1, tmp_path / "dense", recipe=recipe, progress_bar=False, eval_every=150)
+    train("ppo", "surface", 600, 1, tmp_path / "sparse", recipe=recipe, progress_bar=False)
+    dense = json.loads((tmp_path / "dense" / "evaluations.json").read_text())
+    sparse = json.loads((tmp_path / "sparse" / "evaluations.json").read_text())
+    assert len(dense) > len(sparse) >= 2
+    assert json.loads((tmp_path / "dense" / "recipe.json").read_text())["eval_every_env_steps"] == 150
+    with pytest.raises(ValueError, match="eval_every"):
+        train("ppo", "surface", 600, 1, tmp_path / "bad", recipe=recipe, progress_bar=False, eval_every=0)
+    assert not (tmp_path / "bad").exists()        # refused before anything was written
