@@ -10,7 +10,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, save_figure
+from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, save_and_close
 
 
 def _smooth(y: np.ndarray, window: int) -> np.ndarray:
@@ -80,10 +80,7 @@ def plot_learning_curve(run_dir: str | Path, path: str | Path, target: float = 0
                 f"{s['wall_time_s'] / 60:.1f} min"
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    try:
-        return save_figure(fig, path, fmt)
-    finally:
-        plt.close(fig)
+    return save_and_close(fig, path, fmt)
 
 
 def write_run_summary(out: Path, summary: Mapping[str, Any], fmt: str = DEFAULT_FIGURE_FORMAT) -> None:
@@ -145,7 +142,4 @@ def plot_routes(routes: Mapping[str, list[Mapping[str, float]]], path: str | Pat
     axes[1].set_ylim(0.0, 1.02)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    try:
-        return save_figure(fig, path, fmt)
-    finally:
-        plt.close(fig)
+    return save_and_close(fig, path, fmt)

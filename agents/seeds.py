@@ -265,8 +265,5 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
     if axes[1].get_legend_handles_labels()[0]:
         axes[1].legend(fontsize=7)
     fig.tight_layout()
-    from wt_inspect_env.figure_io import save_figure
-    try:
-        return save_figure(fig, path, fmt)
-    finally:
-        plt.close(fig)
+    from wt_inspect_env.figure_io import save_and_close
+    return save_and_close(fig, path, fmt)

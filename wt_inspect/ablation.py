@@ -50,7 +50,7 @@ from pathlib import Path
 from typing import Any, Mapping, Sequence
 
 from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_figure
+from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_and_close
 
 from .evaluation import OutputDirError, prepare_out_dir, run_evaluation
 from .evaluation.runner import flight_key, load_run, rescore_coverage
@@ -260,10 +260,7 @@ def figure(doc: Mapping[str, Any], path: Path, fmt: str = "png") -> Path:
     axes[0, 0].legend(fontsize=7, ncol=2)
     fig.suptitle(f"{doc['scenario']} -> project default, one change per row (task {doc['task']})")
     fig.tight_layout()
-    try:
-        return save_figure(fig, path, fmt)
-    finally:
-        plt.close(fig)
+    return save_and_close(fig, path, fmt)
 
 
 def _floats(text: str) -> list[float]:

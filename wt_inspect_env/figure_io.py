@@ -36,4 +36,15 @@ def save_figure(fig: Any, path: str | Path, fmt: str = DEFAULT_FIGURE_FORMAT, *,
     return target
 
 
-__all__ = ["FIGURE_FORMATS", "DEFAULT_FIGURE_FORMAT", "PNG_DPI", "check_figure_format", "save_figure"]
+def save_and_close(fig: Any, path: str | Path, fmt: str = DEFAULT_FIGURE_FORMAT, **savefig_kwargs: Any) -> Path:
+    """:func:`save_figure`, then free the figure whether or not the write succeeded: pyplot keeps
+    every open figure alive, so a command drawing many would otherwise grow until it exits."""
+    import matplotlib.pyplot as plt
+    try:
+        return save_figure(fig, path, fmt, **savefig_kwargs)
+    finally:
+        plt.close(fig)
+
+
+__all__ = ["FIGURE_FORMATS", "DEFAULT_FIGURE_FORMAT", "PNG_DPI", "check_figure_format", "save_figure",
+           "save_and_close"]

@@ -299,7 +299,7 @@ def _figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from wt_inspect_env.figure_io import save_figure
+    from wt_inspect_env.figure_io import save_and_close
     ep = np.array([r["episode"] for r in rows])
     fig, ax = plt.subplots(2, 2, figsize=(10, 7))
     bad = np.array([bool(r["exception"]) or bool(r["non_finite"]) or bool(r["crashed"]) for r in rows])
@@ -322,9 +322,7 @@ def _figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     ax[1, 1].scatter([r["start_offset_m"] for r in rows], [float(r["min_distance"]) for r in rows], s=14)
     ax[1, 1].set(xlabel="start offset [m]", ylabel="min distance to the point [m]", title="start and distance")
     fig.tight_layout()
-    out = save_figure(fig, path)
-    plt.close(fig)
-    return out
+    return save_and_close(fig, path)
 
 
 def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local", jobs: int | None = None,

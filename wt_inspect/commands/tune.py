@@ -53,7 +53,7 @@ from typing import Any, Mapping, Sequence
 import optuna
 
 from wt_inspect_env.atomic_io import check_out_dir, write_text_atomic
-from wt_inspect_env.figure_io import save_figure
+from wt_inspect_env.figure_io import save_and_close
 
 from ..evaluation import evaluate_policy, registry
 from ..evaluation.backends import check_jobs
@@ -218,7 +218,6 @@ def tune(cfg: TuneConfig) -> dict[str, Any]:
     """Run (or continue) the study, write the outputs, return the summary of ``tune.json``."""
     from tqdm import tqdm
     optuna.logging.set_verbosity(optuna.logging.WARNING)
-    out = Path(cfg.out)
     weights = default_weights(cfg)
     objective = Objective(cfg, weights)
     objective.trial_dir.mkdir(parents=True, exist_ok=True)
@@ -320,8 +319,7 @@ def _figure(cfg: TuneConfig, trials: Sequence[Any], path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    save_figure(fig, path, "png")
-    plt.close(fig)
+    save_and_close(fig, path, "png")
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:

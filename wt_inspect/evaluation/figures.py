@@ -24,7 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, check_figure_format, save_figure  # noqa: E402
+from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, check_figure_format, save_and_close  # noqa: E402
 
 from .registry import display_name  # noqa: E402
 from .report import order_controllers  # noqa: E402
@@ -46,10 +46,7 @@ def _thin(n: int) -> np.ndarray:
 
 def _save(fig: plt.Figure, path: Path) -> Path:
     """Write ``fig`` to ``path`` (its suffix is the format) and free it."""
-    try:
-        return save_figure(fig, path, path.suffix.lstrip("."), bbox_inches="tight")
-    finally:
-        plt.close(fig)
+    return save_and_close(fig, path, path.suffix.lstrip("."), bbox_inches="tight")
 
 
 def _equal_axes(ax, pts: np.ndarray) -> None:
