@@ -91,7 +91,8 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
     if jobs and ray:
         import ray as ray_
 
-        ray_.init(address=address, ignore_reinit_error=True, include_dashboard=False, log_to_driver=False)
+        from wt_inspect.evaluation.backends import init_ray
+        init_ray(address, log_to_driver=False)
         task = ray_.remote(num_cpus=1)(_one_seed)
         pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
         with tqdm(total=n_total, initial=n_total - len(jobs), desc="runs", unit="run", file=sys.stderr) as bar:

@@ -277,6 +277,17 @@ def test_local_and_ray_backends_agree(tmp_path):
     assert rows_l[("vtnmpc", 4.0, 0.0)] != rows_l[("vtnmpc", 4.0, 1.0)]
 
 
+def test_ray_backend_without_an_address_runs_on_its_own_instance(tmp_path, monkeypatch):
+    """Without ``address`` the backend starts a private instance even when the environment points
+    Ray at some cluster (a stale ``ray start``, an exported RAY_ADDRESS): nothing listens on
+    192.0.2.2 (TEST-NET-1), so joining it would fail."""
+    pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_ADDRESS", "192.0.2.2:6379")
+    ev = run_evaluation(out=tmp_path / "ray", backend="ray", scenario="surface", controllers=["vtnmpc"],
+                        winds=[0.0], seeds=[0], max_time=0.5, figures=False, progress=False, jobs=1)
+    assert ev.n_ran == 1 and (tmp_path / "ray" / "results.csv").is_file()
+
+
 def test_display_names():
     from wt_inspect.evaluation.registry import display_name
     assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"

@@ -136,8 +136,9 @@ def test_fine_tune_seeds_start_from_one_base_take_the_recipes_rollout_and_resume
 
 
 @pytest.mark.slow
-def test_ray_seeds(tmp_path):
+def test_ray_seeds(tmp_path, monkeypatch):
     pytest.importorskip("ray")
+    monkeypatch.setenv("RAY_ADDRESS", "192.0.2.2:6379")   # no --address: a private instance, not this
     kw = dict(algo="ppo", task="surface", timesteps=300, n_envs=1, recipe=_tiny_recipe_file(tmp_path),
               progress_bar=False)
     doc = train_seeds([3, 4], tmp_path / "out", ray=True, **kw)

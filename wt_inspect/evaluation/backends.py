@@ -248,6 +248,31 @@ def _import_ray() -> Any:
     return ray
 
 
+def init_ray(address: str | None = None, num_cpus: int | None = None, *, log_to_driver: bool = True) -> bool:
+    """Connect to the Ray cluster at ``address`` (``"auto"``, ``"host:6379"``, ``"ray://host:10001"``),
+    or, without one, start a private local instance with ``num_cpus`` CPUs. Returns whether this
+    call initialised Ray (the caller then shuts it down); an initialised session is used as it is.
+
+    Without an address Ray itself would join whatever cluster ``RAY_ADDRESS`` or the last
+    ``ray start`` on this machine points to - a stale or unrelated one - and then refuse
+    ``num_cpus``; asking for ``"local"`` keeps a run without ``--address`` independent of what
+    else runs on the machine."""
+    ray = _import_ray()
+    if ray.is_initialized():
+        return False
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": log_to_driver,
+                              "configure_logging": False}
+    try:
+        if address:
+            ray.init(address=address, **kwargs)
+        else:
+            ray.init(address="local", num_cpus=num_cpus, **kwargs)
+    except ConnectionError as exc:
+        raise ValueError(f"address {address!r}: no Ray cluster to connect to there ({exc}); "
+                         "start one with `ray start --head` or leave the address out for a local one") from None
+    return True
+
+
 def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | None = None, jobs: int | None = None,
             factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True,
             task: Task | None = None) -> None:
@@ -257,15 +282,7 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
     An already initialised Ray session is used as it is."""
     ray = _import_ray()
     factories = dict(factories or {})
-    started = False
-    if not ray.is_initialized():
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": True,
-                                  "configure_logging": False}
-        if address:
-            ray.init(address=address, **kwargs)
-        else:
-            ray.init(num_cpus=check_jobs(jobs), **kwargs)
-        started = True
+    started = init_ray(address, None if address else check_jobs(jobs))
     board = ProgressBoard(len(specs), progress)
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     refs: dict[Any, RunSpec] = {}
