@@ -105,6 +105,13 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
             _one_seed(kw, s, str(run), progress)
 
 
+def _check_address(ray: bool, address: str | None) -> None:
+    """A cluster address nothing answers on is refused before any directory is made."""
+    if ray and address:
+        from wt_inspect.evaluation.backends import check_ray_address
+        check_ray_address(address)
+
+
 def _unfinished(seeds: Sequence[int], out: Path, kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
     return [(kwargs, s, out / f"seed_{s}") for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
 
@@ -129,6 +136,7 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     ``figure_format`` (in ``train_kwargs``, as for :func:`agents.training.train`) applies to the
     seeds' learning curves and the figure over the seeds."""
     out = Path(out)
+    _check_address(ray, address)
     out.mkdir(parents=True, exist_ok=True)
     progress = bool(train_kwargs.pop("progress_bar", True))
     _run_all(_unfinished(seeds, out, train_kwargs), ray=ray, address=address, progress=progress, n_total=len(seeds))
@@ -156,6 +164,7 @@ def train_recipes(recipes: Sequence[str | Path], seeds: Sequence[int], out: str 
     names = recipe_names(recipes)
     for r in recipes:
         load_recipe(r)            # every recipe checked before any run starts
+    _check_address(ray, address)
     progress = bool(train_kwargs.pop("progress_bar", True))
     per = {n: {**train_kwargs, "recipe": str(r)} for n, r in zip(names, recipes)}
     jobs = []

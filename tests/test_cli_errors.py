@@ -148,3 +148,15 @@ def test_reused_out_flags_stale_files(tmp_path) -> None:
     third = run_evaluation("surface", ["vtnmpc", "nmpc"], winds=[0.0], out=out, jobs=1, max_time=0.05,
                            figures=False, progress=False)
     assert third.files["stale"] == [] and "not from this sweep" not in (out / "results.md").read_text()
+
+
+@pytest.mark.parametrize("argv", [
+    ["evaluate", "--scenario", "surface", "--controllers", "vtnmpc", "--winds", "0", "--backend", "ray"],
+    ["train", "--algo", "ppo", "--task", "surface", "--timesteps", "100", "--seeds", "0,1", "--ray"],
+])
+def test_a_ray_address_nothing_answers_on_is_one_line_and_nothing_written(tmp_path, argv) -> None:
+    pytest.importorskip("ray")
+    out = tmp_path / "out"
+    proc = _cli(*argv, "--address", "127.0.0.1:1", "--out", str(out))
+    _one_line(proc, "address '127.0.0.1:1'", "nothing answers there")
+    assert not out.exists()

@@ -288,6 +288,14 @@ def test_ray_backend_without_an_address_runs_on_its_own_instance(tmp_path, monke
     assert ev.n_ran == 1 and (tmp_path / "ray" / "results.csv").is_file()
 
 
+@pytest.mark.parametrize("address", ["127.0.0.1:1", "ray://127.0.0.1:1", "no-port"])
+def test_ray_address_nothing_answers_on_is_refused_at_once(address):
+    pytest.importorskip("ray")
+    from wt_inspect.evaluation.backends import init_ray
+    with pytest.raises(ValueError, match=f"address '{address}'"):
+        init_ray(address)
+
+
 def test_display_names():
     from wt_inspect.evaluation.registry import display_name
     assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"

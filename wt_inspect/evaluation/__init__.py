@@ -41,7 +41,7 @@ from typing import Any, Callable, Iterable, Mapping, Sequence
 from wt_inspect_env.figure_io import check_figure_format
 
 from . import registry
-from .backends import BACKENDS, check_jobs, run_specs
+from .backends import BACKENDS, check_jobs, check_ray_address, run_specs
 from .report import ReportContext, write_csv, write_markdown
 from .runner import RunResult, RunSpec, code_fingerprint, execute, load_run, make_spec, save_run
 from .scenarios import SCENARIOS, WIND_TYPES, SweepSpec, env_options, get_scenario
@@ -215,6 +215,8 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
                       dict(env_overrides or {}))
     specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
                        record_every=record_every, custom=factories, trust_model=trust_model)
+    if backend == "ray" and address:
+        check_ray_address(address)
     out_dir = prepare_out_dir(out)
     _remove_stale_temporaries(out_dir / "runs")
 

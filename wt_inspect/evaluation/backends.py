@@ -28,6 +28,7 @@ import contextlib
 import ctypes
 import multiprocessing as mp
 import os
+import socket
 import queue as queue_mod
 import signal
 import sys
@@ -248,6 +249,22 @@ def _import_ray() -> Any:
     return ray
 
 
+def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
+    """Refuse a ``host:port`` (or ``ray://host:port``) nothing answers on within ``timeout_s``:
+    Ray itself keeps retrying such an address for many minutes without a word."""
+    if address == "auto":
+        return
+    hostport = address.split("://", 1)[-1]
+    host, sep, port = hostport.rpartition(":")
+    if not sep or not port.isdigit():
+        raise ValueError(f"address {address!r}: expected 'auto', 'host:port' or 'ray://host:port'")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
+    except OSError as exc:
+        raise ValueError(f"address {address!r}: nothing answers there ({exc}); start a cluster with "
+                         "`ray start --head` or leave the address out for a local one") from None
+
+
 def init_ray(address: str | None = None, num_cpus: int | None = None, *, log_to_driver: bool = True) -> bool:
     """Connect to the Ray cluster at ``address`` (``"auto"``, ``"host:6379"``, ``"ray://host:10001"``),
     or, without one, start a private local instance with ``num_cpus`` CPUs. Returns whether this
@@ -262,6 +279,8 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, *, log_to_
         return False
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": log_to_driver,
                               "configure_logging": False}
+    if address:
+        check_ray_address(address)
     try:
         if address:
             ray.init(address=address, **kwargs)
