@@ -94,14 +94,20 @@ def write_run_summary(out: Path, summary: Mapping[str, Any], fmt: str = DEFAULT_
 
 
 def draw_targets(axes, targets: Mapping[str, Mapping[str, float]], colors=("g", "tab:orange", "tab:purple")) -> None:
-    """Dashed threshold lines on a (min(coverage, SM), CM) pair of axes, one colour per named target."""
+    """Dashed threshold lines on a (min(coverage, SM), CM) pair of axes, one colour per named target.
+    Targets that share a threshold on an axis share one line, labelled with all their names (two
+    lines at one height would hide the first)."""
+    lines: list[dict[float, list[tuple[str, str]]]] = [{}, {}]
     for (name, t), color in zip(targets.items(), colors):
-        label = f"{name} target" if name else "target"
         score_min = min((t[k] for k in ("coverage", "safety_sm") if k in t), default=None)
-        if score_min is not None:
-            axes[0].axhline(score_min, ls="--", color=color, lw=1, label=f"{label} {score_min:g}")
-        if "centering_cm" in t:
-            axes[1].axhline(t["centering_cm"], ls="--", color=color, lw=1, label=f"{label} {t['centering_cm']:g}")
+        for i, value in enumerate((score_min, t.get("centering_cm"))):
+            if value is not None:
+                lines[i].setdefault(float(value), []).append((name, color))
+    for ax, by_value in zip(axes, lines):
+        for value, named in by_value.items():
+            names = " = ".join(n for n, _ in named if n)
+            label = f"{names} target" if names else "target"
+            ax.axhline(value, ls="--", color=named[0][1], lw=1, label=f"{label} {value:g}")
 
 
 def route_points(run_dirs: list[str | Path]) -> list[dict[str, float]]:

@@ -212,3 +212,19 @@ def test_eval_every_overrides_the_recipes_cadence_and_is_recorded(tmp_path):
     with pytest.raises(ValueError, match="eval_every"):
         train("ppo", "surface", 600, 1, tmp_path / "bad", recipe=recipe, progress_bar=False, eval_every=0)
     assert not (tmp_path / "bad").exists()        # refused before anything was written
+
+
+def test_targets_that_share_a_threshold_share_one_labelled_line():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from agents.curves import draw_targets
+    fig, axes = plt.subplots(1, 2)
+    draw_targets(axes, {"recipe": {"coverage": 0.99, "safety_sm": 0.99},
+                        "mission": {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995}})
+    assert [ln.get_label() for ln in axes[0].get_lines()] == ["recipe = mission target 0.99"]
+    assert [ln.get_label() for ln in axes[1].get_lines()] == ["mission target 0.995"]
+    draw_targets(axes, {"a": {"coverage": 0.9}, "b": {"coverage": 0.99}})
+    assert len(axes[0].get_lines()) == 3
+    plt.close(fig)
