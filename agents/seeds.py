@@ -91,7 +91,7 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
     if jobs and ray:
         import ray as ray_
 
-        from wt_inspect.evaluation.backends import init_ray
+        from wt_inspect_env.ray_session import init_ray
         init_ray(address, log_to_driver=False)
         task = ray_.remote(num_cpus=1)(_one_seed)
         pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
@@ -108,7 +108,7 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
 def _check_address(ray: bool, address: str | None) -> None:
     """A cluster address nothing answers on is refused before any directory is made."""
     if ray and address:
-        from wt_inspect.evaluation.backends import check_ray_address
+        from wt_inspect_env.ray_session import check_ray_address
         check_ray_address(address)
 
 

@@ -291,7 +291,7 @@ def test_ray_backend_without_an_address_runs_on_its_own_instance(tmp_path, monke
 @pytest.mark.parametrize("address", ["127.0.0.1:1", "ray://127.0.0.1:1", "no-port"])
 def test_ray_address_nothing_answers_on_is_refused_at_once(address):
     pytest.importorskip("ray")
-    from wt_inspect.evaluation.backends import init_ray
+    from wt_inspect_env.ray_session import init_ray
     with pytest.raises(ValueError, match=f"address '{address}'"):
         init_ray(address)
 

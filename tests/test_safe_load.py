@@ -1,7 +1,7 @@
 """Model files run no code when loaded (issue 17): crafted ``:serialized:`` entries and ``.pth``
 members are refused without ``trust_model`` (and their payload never runs), entries SB3 would
 unpickle are rebuilt from the sidecar, shipped models are digest-checked, the VecNormalize
-statistics are JSON, and the converted shipped models act exactly as before the conversion.
+statistics are JSON, and the converted shipped models act as before the conversion (to float32 rounding).
 
 The crafted payload is a pickle whose ``__reduce__`` writes a marker file; each "refused" test
 asserts the marker does not exist, and one test loads the same file with ``trust_model=True`` to
@@ -72,7 +72,7 @@ def _craft_data(path: Path, key: str, marker: Path, keep_description: bool = Fal
 
 # --------------------------------------------------------------------------- shipped models
 @pytest.mark.slow
-def test_shipped_models_act_exactly_as_before_the_conversion():
+def test_shipped_models_act_as_before_the_conversion():
     """Actions and network means on 32 fixed feature vectors equal those recorded with the old
     pickle-based loader (tests/data/shipped_model_actions.npz, recorded before the conversion)."""
     import torch
@@ -86,8 +86,11 @@ def test_shipped_models_act_exactly_as_before_the_conversion():
         actions, _ = pol.model.predict(x, deterministic=True)
         with torch.no_grad():
             means = pol.model.policy.get_distribution(torch.as_tensor(x)).distribution.mean.numpy()
-        np.testing.assert_array_equal(actions, ref[f"{name}/actions"], err_msg=name)
-        np.testing.assert_array_equal(means, ref[f"{name}/means"], err_msg=name)
+        # equal to float32 rounding: the reference was recorded on another CPU (AMD EPYC), whose
+        # matrix kernels round differently in the last bits (2.4e-7 seen on an Intel Xeon); a lost or
+        # wrong normalisation statistic moves these O(1) outputs by orders of magnitude more
+        np.testing.assert_allclose(actions, ref[f"{name}/actions"], rtol=0, atol=1e-5, err_msg=name)
+        np.testing.assert_allclose(means, ref[f"{name}/means"], rtol=0, atol=1e-5, err_msg=name)
 
 
 def test_shipped_models_have_no_pickles_and_match_their_manifest():

@@ -39,9 +39,10 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from wt_inspect_env.figure_io import check_figure_format
+from wt_inspect_env.ray_session import check_ray_address
 
 from . import registry
-from .backends import BACKENDS, check_jobs, check_ray_address, run_specs
+from .backends import BACKENDS, check_jobs, run_specs
 from .report import ReportContext, write_csv, write_markdown
 from .runner import RunResult, RunSpec, code_fingerprint, execute, load_run, make_spec, save_run
 from .scenarios import SCENARIOS, WIND_TYPES, SweepSpec, env_options, get_scenario

@@ -28,7 +28,6 @@ import contextlib
 import ctypes
 import multiprocessing as mp
 import os
-import socket
 import queue as queue_mod
 import signal
 import sys
@@ -37,6 +36,7 @@ import time
 from typing import Any, Callable, Mapping, Sequence
 
 from wt_inspect_env.process_memory import release_free_heap
+from wt_inspect_env.ray_session import import_ray, init_ray
 
 from .runner import RunResult, RunSpec, execute
 
@@ -241,57 +241,6 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None
 
 
 # ------------------------------------------------------------------ ray
-def _import_ray() -> Any:
-    try:
-        import ray
-    except ModuleNotFoundError:
-        raise ValueError("backend 'ray' needs Ray, an optional dependency: pip install 'wt-inspect[ray]'") from None
-    return ray
-
-
-def check_ray_address(address: str, timeout_s: float = 5.0) -> None:
-    """Refuse a ``host:port`` (or ``ray://host:port``) nothing answers on within ``timeout_s``:
-    Ray itself keeps retrying such an address for many minutes without a word."""
-    if address == "auto":
-        return
-    hostport = address.split("://", 1)[-1]
-    host, sep, port = hostport.rpartition(":")
-    if not sep or not port.isdigit():
-        raise ValueError(f"address {address!r}: expected 'auto', 'host:port' or 'ray://host:port'")
-    try:
-        socket.create_connection((host.strip("[]"), int(port)), timeout=timeout_s).close()
-    except OSError as exc:
-        raise ValueError(f"address {address!r}: nothing answers there ({exc}); start a cluster with "
-                         "`ray start --head` or leave the address out for a local one") from None
-
-
-def init_ray(address: str | None = None, num_cpus: int | None = None, *, log_to_driver: bool = True) -> bool:
-    """Connect to the Ray cluster at ``address`` (``"auto"``, ``"host:6379"``, ``"ray://host:10001"``),
-    or, without one, start a private local instance with ``num_cpus`` CPUs. Returns whether this
-    call initialised Ray (the caller then shuts it down); an initialised session is used as it is.
-
-    Without an address Ray itself would join whatever cluster ``RAY_ADDRESS`` or the last
-    ``ray start`` on this machine points to - a stale or unrelated one - and then refuse
-    ``num_cpus``; asking for ``"local"`` keeps a run without ``--address`` independent of what
-    else runs on the machine."""
-    ray = _import_ray()
-    if ray.is_initialized():
-        return False
-    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": log_to_driver,
-                              "configure_logging": False}
-    if address:
-        check_ray_address(address)
-    try:
-        if address:
-            ray.init(address=address, **kwargs)
-        else:
-            ray.init(address="local", num_cpus=num_cpus, **kwargs)
-    except ConnectionError as exc:
-        raise ValueError(f"address {address!r}: no Ray cluster to connect to there ({exc}); "
-                         "start one with `ray start --head` or leave the address out for a local one") from None
-    return True
-
-
 def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | None = None, jobs: int | None = None,
             factories: Mapping[str, Any] | None = None, record: bool = True, progress: bool = True,
             task: Task | None = None) -> None:
@@ -299,7 +248,7 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
     ``jobs`` CPUs is started (and stopped afterwards); with ``address`` (``"auto"`` or
     ``"ray://host:10001"``) an existing cluster is used - its nodes need this package installed.
     An already initialised Ray session is used as it is."""
-    ray = _import_ray()
+    ray = import_ray()
     factories = dict(factories or {})
     started = init_ray(address, None if address else check_jobs(jobs))
     board = ProgressBoard(len(specs), progress)
