@@ -23,6 +23,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.ray_session import check_ray_address, import_ray, init_ray
 
 from .curves import draw_targets, read_evaluations
 
@@ -89,9 +90,7 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
     each; a bar counts finished runs), otherwise one after another with their own bars."""
     from tqdm import tqdm
     if jobs and ray:
-        import ray as ray_
-
-        from wt_inspect_env.ray_session import init_ray
+        ray_ = import_ray()
         init_ray(address, log_to_driver=False)
         task = ray_.remote(num_cpus=1)(_one_seed)
         pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
@@ -108,7 +107,6 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
 def _check_address(ray: bool, address: str | None) -> None:
     """A cluster address nothing answers on is refused before any directory is made."""
     if ray and address:
-        from wt_inspect_env.ray_session import check_ray_address
         check_ray_address(address)
 
 
