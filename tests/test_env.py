@@ -136,6 +136,33 @@ def test_terminates_when_leaving_the_working_volume():
     env.close()
 
 
+def test_pose_error_limit_ends_the_episode_the_first_step_beyond_it():
+    # full thrust climbs away from the pose; the episode must end exactly at the first step whose
+    # distance from the ideal pose exceeds the limit, with the crash penalty, and not before
+    limit = 1.5
+    env = make(wind="none", pose_error_limit=limit)
+    env.reset(seed=0)
+    u = env.unwrapped
+    up = np.array([0, 0, 0, 1.0], dtype=np.float32)
+    for _ in range(2000):
+        _, _, term, trunc, info = env.step(up)
+        err = float(np.linalg.norm(u.sim.state[0:3] - info["ideal_position"]))
+        if term or trunc:
+            break
+        assert err <= limit
+    assert term and info["termination"] == "lost_pose"
+    assert err > limit
+    assert info["reward_terms"]["crash"] == -u.config.reward.crash
+    env.close()
+    # without the limit the same flight goes on past that distance
+    env = make(wind="none")
+    env.reset(seed=0)
+    for _ in range(200):
+        _, _, term, trunc, info = env.step(up)
+    assert not term and np.linalg.norm(env.unwrapped.sim.state[0:3] - info["ideal_position"]) > limit
+    env.close()
+
+
 def test_a_start_far_across_the_rotor_plane_is_inside_its_working_volume():
     # The mission's box is thin along y (the rotor axis): a start 40 m in front of the path was
     # outside it and ended the episode at its first step. The volume now holds the start.
@@ -206,6 +233,8 @@ def test_bad_actions_raise_naming_the_action(bad):
     (dict(standoff=0.0), "standoff"),
     (dict(turbine={"blade_length": -3}), "blade_length"),
     (dict(start_progress=1.0), "start_progress"),
+    (dict(pose_error_limit=0.0), "pose_error_limit"),
+    (dict(pose_error_limit="2"), "pose_error_limit"),
     (dict(reference_lag=2.0, reference_stop=1.0), "reference_stop"),
 ])
 def test_bad_options_raise_naming_the_field(kw, field):

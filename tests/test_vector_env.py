@@ -52,6 +52,7 @@ def _run_side_by_side(n: int, steps: int, seed: int = 3, env_id: str = ENV, wind
                     seen["frames_with_new"] += 1
                 if term or trunc:
                     seen["resets"] += 1
+                    seen[info["termination"]] = seen.get(info["termination"], 0) + 1
                     assert vinfo["_final_obs"][i] and vinfo["_final_info"][i]
                     for k in obs:
                         assert np.array_equal(vinfo["final_obs"][i][k], obs[k]), (t, i, k)
@@ -94,6 +95,12 @@ def test_equivalence_through_the_rotor_turn():
     seen = _run_side_by_side(2, 1700, wind="none", reference_mode="open_loop", reference_speed=60.0,
                              start_noise=0.3, time_limit_s=16.0, action_sd=0.01)
     assert seen["max_phase"] == 2
+
+
+def test_pose_error_limit_matches_the_single_env():
+    # 1.5 m start noise against a 1.2 m limit: some drones end with "lost_pose", in both envs at the same step
+    seen = _run_side_by_side(4, 150, start_noise=1.5, pose_error_limit=1.2, time_limit_s=1.0)
+    assert seen.get("lost_pose", 0) >= 1
 
 
 def test_per_drone_winds_match_single_envs_with_those_winds():

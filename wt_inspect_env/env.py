@@ -12,8 +12,9 @@ At the end of phase 1 the reference holds, the rotor turns by ``rotor_turn_deg``
 mesh and the coverage geometry swap to the rotated turbine, triangle identities kept) and the
 phase-2 path follows.
 
-``terminated``: collision with the turbine or the ground, leaving the working volume, or a
-non-finite state (then ``info["termination"]`` says which). ``truncated``: the mission is complete
+``terminated``: collision with the turbine or the ground, leaving the working volume, a
+non-finite state or, with ``pose_error_limit``, straying too far from the stand-off pose (then
+``info["termination"]`` says which). ``truncated``: the mission is complete
 (``info["mission_complete"]``) or the time limit is reached. ``info["metrics"]`` holds the
 :class:`~wt_inspect_env.metrics.InspectionMetrics` so far (as a dict).
 
@@ -303,6 +304,11 @@ class WindTurbineInspectionEnv(gym.Env):
         p = state[0:3]
         if np.any(p < self._vol_lo) or np.any(p > self._vol_hi):
             return "left_working_volume"
+        limit = self.config.pose_error_limit
+        s = self._sample
+        if (limit is not None and not s.waiting_for_phase_change
+                and float(np.linalg.norm(p - s.ideal_position)) > limit):
+            return "lost_pose"
         return None
 
     def _info(self, terms: dict[str, float]) -> dict[str, Any]:

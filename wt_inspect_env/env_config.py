@@ -104,6 +104,13 @@ class EnvConfig:
         and metrics count from the start point.
     working_margin: the working volume is the bounding box of the turbine, the path and the
         episode's start position, grown by this [m].
+    pose_error_limit: end the episode (``terminated``, ``info["termination"] == "lost_pose"``, the
+        crash penalty) once the drone is farther than this [m] from its ideal stand-off pose;
+        ``None`` (default): no such limit. For RL training: without it a policy can collect the
+        survival and heavy-tailed distance rewards hovering metres away from the pose, a local
+        optimum PPO seeds sit in for a long time (early termination, as in motion imitation).
+        Not checked while the drone waits for a phase change (the rotor turn), where the pose
+        moves to the next phase's start.
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and
@@ -149,6 +156,7 @@ class EnvConfig:
     start_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_progress: float = 0.0
     working_margin: float = 30.0
+    pose_error_limit: float | None = None
     occlusion: bool = True
     end_hold_s: float = 2.0
     seed: int | None = None
@@ -204,6 +212,8 @@ class EnvConfig:
         if self.start_progress >= 1.0:
             raise ValueError(f"start_progress must be below 1, got {self.start_progress!r}")
         check_positive("working_margin", self.working_margin)
+        if self.pose_error_limit is not None:
+            check_positive("pose_error_limit", self.pose_error_limit)
         check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0):
             raise ValueError(f"seed must be a non-negative integer or None, got {self.seed!r}")

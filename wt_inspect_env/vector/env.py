@@ -53,7 +53,7 @@ from .metrics import BatchedMetrics
 from .reference import BatchedReference
 from .sim import BatchedQuadrotorSim, ray_mask
 
-_TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume")
+_TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 _MAX_RAYS = 16383
 
 
@@ -248,6 +248,10 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         p = np.where(finite[:, None], state[:, 0:3], 0.0)
         left = np.any(p < self._vol_lo, axis=1) | np.any(p > self._vol_hi, axis=1)
         code = np.where(~finite, 1, np.where(collision, 2, np.where(left, 3, 0)))
+        limit = self.config.pose_error_limit
+        if limit is not None:      # as the single env's _termination: not while waiting for a phase change
+            lost = ~sample.waiting_for_phase_change & (np.linalg.norm(p - sample.ideal_position, axis=1) > limit)
+            code = np.where(code == 0, np.where(finite & lost, 4, 0), code)
         terminated = code > 0
         reward, terms = reward_terms(self.config.reward, self.dt, self.n_triangles, a, self._hover, state,
                                      sample.ideal_position, sample.point, new, terminated)
