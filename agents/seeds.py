@@ -110,19 +110,45 @@ def _check_address(ray: bool, address: str | None) -> None:
         check_ray_address(address)
 
 
+SEED_FIELD = "{seed}"
+
+
+def seed_base(resume: str | Path | None, seed: int) -> str | None:
+    """The model seed ``seed`` starts from: ``resume`` itself, or with ``{seed}`` replaced by the
+    seed - so each seed of a curriculum stage fine-tunes its own seed's model of the stage before
+    (``--resume OUT_BLADE/seed_{seed}/model.zip``), not one shared base."""
+    if resume is None:
+        return None
+    return str(resume).replace(SEED_FIELD, str(seed))
+
+
+def check_seed_bases(resume: str | Path | None, seeds: Sequence[int]) -> None:
+    """Every seed's base model exists (ValueError naming --resume and the missing file), checked
+    before any run starts."""
+    if resume is None:
+        return
+    for s in seeds:
+        base = seed_base(resume, s)
+        if not Path(base).is_file():
+            raise ValueError(f"--resume: no model {base!r} for seed {s}")
+
+
 def _unfinished(seeds: Sequence[int], out: Path, kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
-    return [(kwargs, s, out / f"seed_{s}") for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
+    return [({**kwargs, "resume": seed_base(kwargs.get("resume"), s)}, s, out / f"seed_{s}")
+            for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
 
 
 def _write_seed_report(seeds: Sequence[int], out: Path, train_kwargs: Mapping[str, Any]) -> dict[str, Any]:
     targets = report_targets(_recipe_target(train_kwargs))
-    doc = seed_report(out, seeds, targets, base=base_training(train_kwargs.get("resume")))
-    doc["resumed_from"] = None if train_kwargs.get("resume") is None else str(train_kwargs["resume"])
+    resume = train_kwargs.get("resume")
+    bases = {s: base_training(seed_base(resume, s)) for s in seeds}
+    doc = seed_report(out, seeds, targets, base=bases)
+    doc["resumed_from"] = None if resume is None else str(resume)
     doc["recipe"] = None if train_kwargs.get("recipe") is None else str(train_kwargs["recipe"])
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
-                         targets=targets, base_steps=doc["base"]["env_steps"])
+                         targets=targets, base_steps={s: b["env_steps"] for s, b in bases.items()})
     except Exception as exc:  # a figure must never lose finished runs
         print(f"warning: seed figure not drawn: {exc}", file=sys.stderr)
     return doc
@@ -135,6 +161,7 @@ def train_seeds(seeds: Sequence[int], out: str | Path, *, ray: bool = False, add
     seeds' learning curves and the figure over the seeds."""
     out = Path(out)
     _check_address(ray, address)
+    check_seed_bases(train_kwargs.get("resume"), seeds)
     out.mkdir(parents=True, exist_ok=True)
     progress = bool(train_kwargs.pop("progress_bar", True))
     _run_all(_unfinished(seeds, out, train_kwargs), ray=ray, address=address, progress=progress, n_total=len(seeds))
@@ -163,6 +190,7 @@ def train_recipes(recipes: Sequence[str | Path], seeds: Sequence[int], out: str 
     for r in recipes:
         load_recipe(r)            # every recipe checked before any run starts
     _check_address(ray, address)
+    check_seed_bases(train_kwargs.get("resume"), seeds)
     progress = bool(train_kwargs.pop("progress_bar", True))
     per = {n: {**train_kwargs, "recipe": str(r)} for n, r in zip(names, recipes)}
     jobs = []
@@ -204,16 +232,20 @@ def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> b
 
 def seed_report(out: Path, seeds: Sequence[int],
                 targets: Mapping[str, Mapping[str, float]] | None = None,
-                base: Mapping[str, float] | None = None) -> dict[str, Any]:
+                base: Mapping[Any, Any] | None = None) -> dict[str, Any]:
     """Per seed: final evaluation, and for each of ``targets`` (name -> thresholds; default
     ``{"mission": TARGET}``) the first evaluation that met it. The first target is the headline:
     its result is also given as ``target`` / ``reached_target`` / ``n_reached``. ``base``: the
-    env steps and wall time of the model a fine-tune stage started from (:func:`base_training`);
-    the evaluations count them, so ``stage_env_steps`` / ``stage_wall_s`` subtract them."""
+    env steps and wall time of the model a fine-tune stage started from (:func:`base_training`),
+    or ``{seed: that}`` when every seed has its own base; the evaluations count them, so
+    ``stage_env_steps`` / ``stage_wall_s`` subtract them."""
     targets = dict(targets or {"mission": TARGET})
-    base = dict(base or {"env_steps": 0, "wall_time_s": 0.0})
+    zero = {"env_steps": 0, "wall_time_s": 0.0}
+    per_seed = bool(base) and all(isinstance(k, int) for k in base)
+    bases = {s: dict(base.get(s, zero)) if per_seed else dict(base or zero) for s in seeds}
     rows = []
     for s in seeds:
+        base = bases[s]
         evals = read_evaluations(out / f"seed_{s}")
         row: dict[str, Any] = {"seed": s, "evaluations": len(evals), "final": evals[-1]["mean"] if evals else None,
                                "targets": {}}
@@ -231,16 +263,19 @@ def seed_report(out: Path, seeds: Sequence[int],
     summary = {name: {"target": dict(t), "n_reached": sum(r["targets"][name]["reached"] for r in rows)}
                for name, t in targets.items()}
     first = next(iter(targets))
-    return {"target": dict(targets[first]), "target_name": first, "seeds": rows, "base": base,
+    same = all(b == bases[seeds[0]] for b in bases.values()) if seeds else True
+    shown: Any = (bases[seeds[0]] if seeds else dict(zero)) if same else {str(s): b for s, b in bases.items()}
+    return {"target": dict(targets[first]), "target_name": first, "seeds": rows, "base": shown,
             "n_reached": summary[first]["n_reached"], "targets": summary}
 
 
 def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png",
-                     targets: Mapping[str, Mapping[str, float]] | None = None, base_steps: int = 0) -> Path:
+                     targets: Mapping[str, Mapping[str, float]] | None = None,
+                     base_steps: int | Mapping[int, int] = 0) -> Path:
     """Evaluation score min(coverage, SM) and CM against env steps, per seed and mean +- std, with
     each target's thresholds as dashed lines, as ``fmt`` (png, pdf, svg; ``path``'s suffix is
-    replaced by it). ``base_steps``: a fine-tune stage's base model's steps, subtracted so the axis
-    counts this stage's steps. The mean and spread cover the steps every seed has evaluated from
+    replaced by it). ``base_steps``: a fine-tune stage's base model's steps (or ``{seed: steps}``),
+    subtracted so the axis counts this stage's steps. The mean and spread cover the steps every seed has evaluated from
     (nothing extrapolated before a seed's first evaluation). Returns the written path."""
     import matplotlib
     matplotlib.use("Agg")
@@ -252,7 +287,8 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
         evals = read_evaluations(out / f"seed_{s}")
         if not evals:
             continue
-        x = np.array([e["env_steps"] for e in evals], float) - base_steps
+        x = np.array([e["env_steps"] for e in evals], float) - (
+            base_steps.get(s, 0) if isinstance(base_steps, Mapping) else base_steps)
         score = np.array([min(e["mean"]["coverage"], e["mean"]["safety_sm"]) for e in evals])
         cm = np.array([e["mean"]["centering_cm"] for e in evals])
         curves.append((x, score, cm))
@@ -266,7 +302,8 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
             ax.plot(grid, m, color="k", lw=2, label="mean over seeds")
             ax.fill_between(grid, m - sd, m + sd, color="k", alpha=0.15, label="+-1 std")
     draw_targets(axes, targets or {"mission": TARGET})
-    xlabel = "env steps in this stage" if base_steps else "env steps"
+    fine_tune = any(base_steps.values()) if isinstance(base_steps, Mapping) else bool(base_steps)
+    xlabel = "env steps in this stage" if fine_tune else "env steps"
     axes[0].set(xlabel=xlabel, ylabel="min(coverage, SM)", title="evaluation score")
     axes[1].set(xlabel=xlabel, ylabel="CM", title="centering")
     axes[0].legend(fontsize=7)

@@ -35,7 +35,9 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--recipe", default=None,
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming); "
                         "with --seeds, several comma-separated: one run per recipe and seed into OUT/<recipe>/seed_<s>/")
-    p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from")
+    p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from; with --seeds, "
+                   "'{seed}' in the path is replaced by each seed (OUT_BLADE/seed_{seed}/model.zip: every seed fine-tunes "
+                   "its own model of the curriculum's stage before)")
     p.add_argument("--trust-model", action="store_true",
                    help="WARNING: with --resume (or --seeds resuming unfinished seeds), also load a checkpoint "
                         "that needs unpickling (an old "

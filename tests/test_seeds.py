@@ -88,6 +88,45 @@ def test_recipe_target_is_checked(bad, match):
     assert Recipe.from_dict({**data, "target": {"coverage": 0.9}}).target == {"coverage": 0.9}
 
 
+def test_each_seed_can_start_from_its_own_base_and_the_report_counts_its_own_stage(tmp_path):
+    from agents.seeds import check_seed_bases, seed_base
+    assert seed_base("blade/seed_{seed}/model.zip", 3) == "blade/seed_3/model.zip"
+    assert seed_base("base.zip", 3) == "base.zip" and seed_base(None, 3) is None
+    (tmp_path / "seed_0").mkdir()
+    (tmp_path / "seed_0" / "model.zip").write_bytes(b"x")
+    check_seed_bases(str(tmp_path / "seed_{seed}" / "model.zip"), [0])
+    with pytest.raises(ValueError, match=r"--resume: no model .*seed_1.* for seed 1"):
+        check_seed_bases(str(tmp_path / "seed_{seed}" / "model.zip"), [0, 1])
+    # per-seed bases: each seed's stage steps and wall time subtract its own base's
+    _fake_evaluations(tmp_path / "r" / "seed_0", [(1500, (1.0, 1.0, 0.996))])
+    _fake_evaluations(tmp_path / "r" / "seed_1", [(2500, (1.0, 1.0, 0.996))])
+    bases = {0: {"env_steps": 1000, "wall_time_s": 1.0}, 1: {"env_steps": 2000, "wall_time_s": 1.5}}
+    doc = seed_report(tmp_path / "r", [0, 1], base=bases)
+    assert [r["targets"]["mission"]["stage_env_steps"] for r in doc["seeds"]] == [500, 500]
+    assert [r["targets"]["mission"]["stage_wall_s"] for r in doc["seeds"]] == [0.5, 1.0]
+    assert doc["base"] == {"0": bases[0], "1": bases[1]}
+    one = {"env_steps": 1000, "wall_time_s": 1.0}
+    assert seed_report(tmp_path / "r", [0, 1], base=one)["base"] == one
+
+
+@pytest.mark.slow
+def test_curriculum_seeds_fine_tune_their_own_seeds_models(tmp_path):
+    """``--resume DIR/seed_{seed}/model.zip``: seed s fine-tunes seed s's model of the stage before."""
+    recipe = _tiny_recipe_file(tmp_path)
+    kw = dict(algo="ppo", task="surface", timesteps=300, n_envs=1, recipe=recipe, progress_bar=False)
+    train_seeds([0, 1], tmp_path / "stage1", **kw)
+    with pytest.raises(ValueError, match="--resume: no model"):
+        train_seeds([0, 2], tmp_path / "bad", **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
+    assert not (tmp_path / "bad").exists()
+    doc = train_seeds([0, 1], tmp_path / "stage2", **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
+    for s in (0, 1):
+        summary = json.loads((tmp_path / "stage2" / f"seed_{s}" / "summary.json").read_text())
+        assert summary["resumed_from"] == str(tmp_path / "stage1" / f"seed_{s}" / "model.zip")
+        first = json.loads((tmp_path / "stage1" / f"seed_{s}" / "summary.json").read_text())["env_steps"]
+        assert doc["base"].get(str(s), doc["base"])["env_steps"] == first   # one dict when the bases agree
+    assert (tmp_path / "stage2" / "learning_curves_seeds.png").is_file()
+
+
 @pytest.mark.slow
 def test_fine_tune_seeds_start_from_one_base_take_the_recipes_rollout_and_resume(tmp_path):
     """``--seeds`` with ``--resume``: every seed fine-tunes the same base model, seeded (the same
