@@ -4,7 +4,9 @@ The training runs live outside the repository (their checkpoints are hundreds of
 reads their ``evaluations.json`` (each a periodic evaluation on the full mission at 4 m/s,
 deterministic policy), writes the extracted points to ``routes.json`` and draws ``routes.png``.
 ``python results/training/routes/make_routes.py RUNS_ROOT`` with RUNS_ROOT holding the run
-directories named below; ``--from-json`` redraws the figure from the committed ``routes.json``.
+directories named below; ``--from-json`` redraws the figure from the committed ``routes.json``;
+``--add RUNS_ROOT LABEL...`` extracts only the named routes from RUNS_ROOT into the committed
+``routes.json`` (routes whose runs are on another machine keep their committed points) and redraws.
 """
 from __future__ import annotations
 
@@ -23,12 +25,24 @@ ROUTES = {
     "behaviour cloning at 25 Hz + DAgger": ["dagger"],
     "PPO curriculum: surface -> blade -> full -> fine centering": [
         "ppo_blade_to_full", "ppo_full_2", "ppo_centering", "ppo_centering2", "ppo_centering3"],
+    "PPO on 128 drones: blade agent -> full with fine centering (ppo_full_vec128)": ["full128_from_blade/seed_0"],
+    "PPO from scratch on 128 drones, 3 m pose limit (pilot)": ["pilotF_s0"],
 }
 
 
 def main(argv: list[str]) -> int:
     if argv and argv[0] == "--from-json":
         routes = json.loads((HERE / "routes.json").read_text())["routes"]
+    elif argv and argv[0] == "--add":
+        root, labels = Path(argv[1]), argv[2:]
+        unknown = [lab for lab in labels if lab not in ROUTES]
+        if unknown:
+            print(f"make_routes: unknown route {unknown[0]!r}; known: {', '.join(ROUTES)}", file=sys.stderr)
+            return 2
+        routes = json.loads((HERE / "routes.json").read_text())["routes"]
+        routes.update({lab: route_points([root / d for d in ROUTES[lab]]) for lab in labels})
+        write_text_atomic(HERE / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
+                                                          indent=1) + "\n")
     else:
         root = Path(argv[0]) if argv else Path(".")
         routes = {label: route_points([root / d for d in dirs]) for label, dirs in ROUTES.items()}
