@@ -245,7 +245,7 @@ def seed_report(out: Path, seeds: Sequence[int],
     bases = {s: dict(base.get(s, zero)) if per_seed else dict(base or zero) for s in seeds}
     rows = []
     for s in seeds:
-        base = bases[s]
+        own = bases[s]
         evals = read_evaluations(out / f"seed_{s}")
         row: dict[str, Any] = {"seed": s, "evaluations": len(evals), "final": evals[-1]["mean"] if evals else None,
                                "targets": {}}
@@ -254,8 +254,8 @@ def seed_report(out: Path, seeds: Sequence[int],
             row["targets"][name] = {"reached": hit is not None,
                                     "env_steps": None if hit is None else hit["env_steps"],
                                     "wall_s": None if hit is None else hit["wall_time_s"],
-                                    "stage_env_steps": None if hit is None else hit["env_steps"] - base["env_steps"],
-                                    "stage_wall_s": None if hit is None else hit["wall_time_s"] - base["wall_time_s"]}
+                                    "stage_env_steps": None if hit is None else hit["env_steps"] - own["env_steps"],
+                                    "stage_wall_s": None if hit is None else hit["wall_time_s"] - own["wall_time_s"]}
         head = row["targets"][next(iter(targets))]
         row.update(reached_target=head["reached"], reached_at_env_steps=head["env_steps"],
                    reached_at_wall_s=head["wall_s"])

@@ -251,7 +251,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         limit = self.config.pose_error_limit
         if limit is not None:      # as the single env's _termination: not while waiting for a phase change
             lost = ~sample.waiting_for_phase_change & (np.linalg.norm(p - sample.ideal_position, axis=1) > limit)
-            code = np.where(code == 0, np.where(finite & lost, 4, 0), code)
+            code = np.where((code == 0) & lost, 4, code)   # code 0 means finite, no collision, inside
         terminated = code > 0
         reward, terms = reward_terms(self.config.reward, self.dt, self.n_triangles, a, self._hover, state,
                                      sample.ideal_position, sample.point, new, terminated)

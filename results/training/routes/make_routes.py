@@ -41,11 +41,10 @@ def main(argv: list[str]) -> int:
             return 2
         routes = json.loads((HERE / "routes.json").read_text())["routes"]
         routes.update({lab: route_points([root / d for d in ROUTES[lab]]) for lab in labels})
-        write_text_atomic(HERE / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
-                                                          indent=1) + "\n")
     else:
         root = Path(argv[0]) if argv else Path(".")
         routes = {label: route_points([root / d for d in dirs]) for label, dirs in ROUTES.items()}
+    if not (argv and argv[0] == "--from-json"):
         write_text_atomic(HERE / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
                                                           indent=1) + "\n")
     print(plot_routes(routes, HERE / "routes.png", target=TARGET))
