@@ -160,3 +160,12 @@ def test_a_ray_address_nothing_answers_on_is_one_line_and_nothing_written(tmp_pa
     proc = _cli(*argv, "--address", "127.0.0.1:1", "--out", str(out))
     _one_line(proc, "address '127.0.0.1:1'", "nothing answers there")
     assert not out.exists()
+
+
+def test_ray_backend_without_ray_is_one_error_and_nothing_written(tmp_path, monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)     # `import ray` now fails as when it is not installed
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"needs Ray.*wt-inspect\[ray\]"):
+        run_evaluation("surface", ["nmpc"], winds=[0.0], out=out, backend="ray", jobs=1, max_time=0.05,
+                       figures=False, progress=False)
+    assert not out.exists()

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from wt_inspect_env.figure_io import check_figure_format
-from wt_inspect_env.ray_session import check_ray_address
+from wt_inspect_env.ray_session import check_ray_address, import_ray
 
 from . import registry
 from .backends import BACKENDS, check_jobs, run_specs
@@ -216,8 +216,10 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
                       dict(env_overrides or {}))
     specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
                        record_every=record_every, custom=factories, trust_model=trust_model)
-    if backend == "ray" and address:
-        check_ray_address(address)
+    if backend == "ray":   # before the output directory is made: a missing Ray leaves nothing behind
+        import_ray()
+        if address:
+            check_ray_address(address)
     out_dir = prepare_out_dir(out)
     _remove_stale_temporaries(out_dir / "runs")
 
