@@ -310,3 +310,16 @@ def test_results_md_names_the_turbine_and_drone_given_over_the_scenario():
                                                                     "drone": "lab250"}))
     head = text.splitlines()[2]
     assert '**turbine overridden**: `{"tower_height": 90.0}`' in head and '**drone overridden**: `"lab250"`' in head
+
+
+@pytest.mark.parametrize("overrides, frames, step", [
+    ({}, "camera frames at 10 Hz, occlusion tested", "every control step (0.01 s)"),
+    ({"occlusion": False, "ctrl_hz": 200.0, "camera_hz": 5.0}, "camera frames at 5 Hz, no occlusion test",
+     "every control step (0.005 s)"),
+])
+def test_results_md_states_the_runs_own_camera_rate_occlusion_and_control_step(tmp_path, overrides, frames,
+                                                                               step) -> None:
+    run_evaluation("surface", ["nmpc"], [0], out=tmp_path, jobs=1, max_time=0.05, env_overrides=overrides,
+                   figures=False, progress=False)
+    metrics_line = next(l for l in (tmp_path / "results.md").read_text().splitlines() if l.startswith("- Metrics"))
+    assert frames in metrics_line and step in metrics_line

@@ -16,11 +16,12 @@ import os
 import platform
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.env_config import EnvConfig
 
 from .registry import display_name
 from .runner import RunResult
@@ -149,6 +150,21 @@ def order_controllers(names: Iterable[str]) -> list[str]:
     return [n for n in PAPER_ORDER if n in names] + [n for n in names if n not in PAPER_ORDER]
 
 
+def _values(results: Sequence[RunResult], option: str, fmt: Callable[[Any], str]) -> str:
+    """The runs' values of environment option ``option`` (the default's where a run does not set it),
+    formatted and joined: the report states what the runs used, not what the defaults are."""
+    default = getattr(EnvConfig(), option)
+    vals = sorted({r.spec.env_options.get(option, default) for r in results}, key=str)
+    return " / ".join(fmt(v) for v in vals) if vals else fmt(default)
+
+
+def _frames_note(results: Sequence[RunResult]) -> str:
+    """"camera frames at 10 Hz, occlusion tested", from the runs' own options."""
+    hz = _values(results, "camera_hz", lambda v: f"{float(v):g} Hz")
+    occ = _values(results, "occlusion", lambda v: "occlusion tested" if v else "no occlusion test")
+    return f"camera frames at {hz}, {occ}"
+
+
 def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     sc = get_scenario(ctx.scenario)
     rows = [r.row() for r in results]
@@ -222,12 +238,12 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                "- No paper columns: the paper has no numbers for this scenario and wind. Solve times are the "
                "policy's own time per control step on the machine below."),
               "- Metrics (wt_inspect_env.metrics): coverage = share of the mission's blade triangles seen at least "
-              "once (camera frames at 10 Hz, occlusion tested); SM = share of inspecting samples with "
+              f"once ({_frames_note(results)}); SM = share of inspecting samples with "
               "|d - d_ref| below the margin, d the horizontal distance to the inspection point; CM = mean heading "
               "function h of the gimbal camera (the horizontal part of the body x axis, as the authors' code "
               "computed it); \"CM with body-axis h\" uses the paper's printed full-attitude formula, which "
               "drops by cos(tilt) when the drone leans into the wind while the image stays centred; all at "
-              "every 0.01 s control step.",
+              f"every control step ({_values(results, 'ctrl_hz', lambda v: f'{1.0 / float(v):g} s')}).",
               f"- Hardware: {hardware()}.",
               f"- Backend: {ctx.backend}, {ctx.jobs} parallel jobs; wall time of this invocation "
               f"{ctx.wall_time_s:.0f} s ({ctx.n_ran} runs executed, {ctx.n_resumed} resumed from earlier run files)."]
