@@ -71,3 +71,7 @@ def test_two_rows_fly_and_write_the_study(tmp_path):
     assert [d.name for d in (tmp_path / "rows").iterdir()] == ["00_paper-faithful"]
     md = (tmp_path / "results.md").read_text()
     assert "↻" in md and "Only the first 2 of the chain's 10 rows" in md
+    # the flights' own wall time, summed over the 3 flown runs (row 1 flies none)
+    assert doc["n_flights"] == 3 and doc["flights_wall_s"] == pytest.approx(sum(c["wall_time"] for c in (
+        doc["rows"][0]["cells"].values())))
+    assert f"the study's 3 flights took {doc['flights_wall_s']:.0f} s" in md

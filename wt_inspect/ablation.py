@@ -133,7 +133,7 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
     rows = plan_rows(steps)
     doc = {"scenario": scenario, "task": task, "winds": list(map(float, winds)), "max_time": max_time,
            "n_rows": len(rows), "of_chain": len(STEPS),
-           "wall_time_s": 0.0, "complete": False, "rows": [],
+           "wall_time_s": 0.0, "n_flights": 0, "flights_wall_s": 0.0, "complete": False, "rows": [],
            "paper": {f"{col}@{w:g}": paper_numbers("paper", w, base)
                      for col, base in zip(COLUMNS, ("nmpc", "pampc", "vtnmpc")) for w in winds}}
     flown: dict[tuple[str, str, float], dict[str, Any]] = {}      # (env key, controller, wind) -> row
@@ -156,7 +156,9 @@ def run_ablation(out: str | Path, *, task: str = "full", winds: Sequence[float] 
                 ev = run_evaluation(scenario, new, winds, (0,), out=out / "rows" / f"{i:02d}_{row['key']}",
                                     jobs=jobs, max_time=max_time, env_overrides=row["env"], figures=False,
                                     progress=progress)
-                for res in ev.results:
+                for res in ev.results:   # resumed runs count with the wall time they were flown in
+                    doc["n_flights"] += 1
+                    doc["flights_wall_s"] += float(res.wall_time_s)
                     r = res.row()
                     flown[(ek, r["controller"], float(r["wind"]))] = r
                     flights[(fk, r["controller"], float(r["wind"]))] = (r, res.path)
@@ -200,7 +202,10 @@ def markdown(doc: Mapping[str, Any]) -> str:
              f"Task `{doc['task']}`" + (f", each run capped at {doc['max_time']:g} s" if doc["max_time"] else "")
              + f"; gust winds {', '.join(f'{w:g}' for w in doc['winds'])} m/s; seed 0. Cells: coverage / SM / CM "
              "in %, minimum distance in m; in brackets the change from the row above (only where it is "
-             f"nonzero). Wall time {doc['wall_time_s']:.0f} s.", ""]
+             f"nonzero). Wall time of this invocation {doc['wall_time_s']:.0f} s"
+             + (f"; the study's {doc['n_flights']} flights took {doc['flights_wall_s']:.0f} s of wall time each "
+                "summed, when they were flown (resumed ones included; re-scoring excluded)"
+                if doc.get("n_flights") else "") + ".", ""]
     if doc.get("n_rows", len(STEPS)) < doc.get("of_chain", len(STEPS)):
         lines += [f"Only the first {doc['n_rows']} of the chain's {doc['of_chain']} rows (`--rows {doc['n_rows']}`).", ""]
     if not doc.get("complete", True):
