@@ -74,4 +74,4 @@ def test_two_rows_fly_and_write_the_study(tmp_path):
     # the flights' own wall time, summed over the 3 flown runs (row 1 flies none)
     assert doc["n_flights"] == 3 and doc["flights_wall_s"] == pytest.approx(sum(c["wall_time"] for c in (
         doc["rows"][0]["cells"].values())))
-    assert f"the study's 3 flights took {doc['flights_wall_s']:.0f} s" in md
+    assert f"its 3 flights took {doc['flights_wall_s']:.0f} s of wall time in sum" in md

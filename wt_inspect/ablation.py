@@ -203,8 +203,8 @@ def markdown(doc: Mapping[str, Any]) -> str:
              + f"; gust winds {', '.join(f'{w:g}' for w in doc['winds'])} m/s; seed 0. Cells: coverage / SM / CM "
              "in %, minimum distance in m; in brackets the change from the row above (only where it is "
              f"nonzero). Wall time of this invocation {doc['wall_time_s']:.0f} s"
-             + (f"; the study's {doc['n_flights']} flights took {doc['flights_wall_s']:.0f} s of wall time each "
-                "summed, when they were flown (resumed ones included; re-scoring excluded)"
+             + (f"; its {doc['n_flights']} flights took {doc['flights_wall_s']:.0f} s of wall time in sum, "
+                "each timed when it was flown (resumed ones included; re-scoring excluded)"
                 if doc.get("n_flights") else "") + ".", ""]
     if doc.get("n_rows", len(STEPS)) < doc.get("of_chain", len(STEPS)):
         lines += [f"Only the first {doc['n_rows']} of the chain's {doc['of_chain']} rows (`--rows {doc['n_rows']}`).", ""]
@@ -262,9 +262,10 @@ def figure(doc: Mapping[str, Any], path: Path, fmt: str = "png") -> Path:
         ax.grid(alpha=0.3)
     for ax in axes[1]:
         ax.set_xticks(x, [r["key"] for r in rows], rotation=45, ha="right")
-    axes[0, 0].legend(fontsize=7, ncol=2)
+    handles, labels = axes[0, 0].get_legend_handles_labels()   # below the panels: inside one it hides data
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 6), fontsize=8)
     fig.suptitle(f"{doc['scenario']} -> project default, one change per row (task {doc['task']})")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0.05, 1, 1))
     return save_and_close(fig, path, fmt)
 
 
