@@ -85,6 +85,9 @@ def test_two_trials_write_best_weights_that_build_a_controller_and_a_rerun_resum
     summary = json.loads((out / "tune.json").read_text())
     assert summary["best"]["weights"] == weights.to_dict() and summary["trials"] == 2
     assert summary["best"]["value"] == max(float(r["value"]) for r in rows)
+    # each wind's score is the sum of its coverage, SM and CM, all three in the table
+    for r in rows:
+        assert float(r["score_w4"]) == pytest.approx(sum(float(r[f"{m}_w4"]) for m in ("coverage", "sm", "cm")))
     assert (out / "optimisation_history.png").stat().st_size > 0
     env = gym.make("WindTurbineInspection-Surface-v0")
     try:

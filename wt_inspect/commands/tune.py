@@ -190,6 +190,9 @@ class Objective:
             scores.append(run_score(res, cfg.crash_penalty))
             trial.set_user_attr(f"score_w{wind:g}", scores[-1])
             trial.set_user_attr(f"termination_w{wind:g}", res.termination or "")
+            for key, short in (("coverage", "coverage"), ("safety_sm", "sm"), ("centering_cm", "cm")):
+                v = res.metrics.get(key)   # the score's parts, so trials.csv says why a trial scored so
+                trial.set_user_attr(f"{short}_w{wind:g}", float(v) if isinstance(v, (int, float)) else math.nan)
             mean = sum(scores) / len(scores)
             trial.report(mean, step=i)
             if i < len(cfg.winds) - 1 and trial.should_prune():
