@@ -158,11 +158,15 @@ def scaled(weights: Any, multipliers: Mapping[str, float]) -> Any:
     return type(weights).from_mapping(data, base=weights)
 
 
+#: the metrics a run's score sums, with their column names in trials.csv
+SCORE_PARTS = {"coverage": "coverage", "safety_sm": "sm", "centering_cm": "cm"}
+
+
 def run_score(result: Any, crash_penalty: float) -> float:
     """One run's score (see the module docstring)."""
     m = result.metrics
     total = sum(float(v) if isinstance(v := m.get(k), (int, float)) and math.isfinite(v) else 0.0
-                for k in ("coverage", "safety_sm", "centering_cm"))
+                for k in SCORE_PARTS)
     crashed = (result.termination or "") not in CLEAN_ENDS or (m.get("collisions") or 0) > 0
     return total - (crash_penalty if crashed else 0.0)
 
@@ -190,7 +194,7 @@ class Objective:
             scores.append(run_score(res, cfg.crash_penalty))
             trial.set_user_attr(f"score_w{wind:g}", scores[-1])
             trial.set_user_attr(f"termination_w{wind:g}", res.termination or "")
-            for key, short in (("coverage", "coverage"), ("safety_sm", "sm"), ("centering_cm", "cm")):
+            for key, short in SCORE_PARTS.items():
                 v = res.metrics.get(key)   # the score's parts, so trials.csv says why a trial scored so
                 trial.set_user_attr(f"{short}_w{wind:g}", float(v) if isinstance(v, (int, float)) else math.nan)
             mean = sum(scores) / len(scores)
