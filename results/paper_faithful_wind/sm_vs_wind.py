@@ -26,6 +26,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parents[1]))
 
+from wt_inspect.evaluation.report import read_csv  # noqa: E402
 from wt_inspect.evaluation.scenarios import paper_numbers  # noqa: E402
 from wt_inspect_env.atomic_io import write_text_atomic  # noqa: E402
 from wt_inspect_env.figure_io import save_and_close  # noqa: E402
@@ -41,11 +42,9 @@ ROUNDS_TO_100 = 0.9995   # the paper prints one decimal: its "100 %" is any SM o
 def read_sm(paths: list[Path]) -> dict[str, dict[float, float]]:
     """controller -> {mean wind: SM} from the harness's results.csv files (seed 0)."""
     out: dict[str, dict[float, float]] = {c: {} for c in CONTROLLERS}
-    for path in paths:
-        with path.open(newline="") as fh:
-            for row in csv.DictReader(fh):
-                if row["controller"] in out and row["seed"] == "0":
-                    out[row["controller"]][float(row["wind"])] = float(row["safety"])
+    for row in (r for path in paths for r in read_csv(path)):
+        if row["controller"] in out and row["seed"] == 0:
+            out[row["controller"]][row["wind"]] = row["safety"]
     return out
 
 
