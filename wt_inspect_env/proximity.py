@@ -48,6 +48,7 @@ class MeshProximity:
         rho = np.linalg.norm(tris - cent[:, None], axis=2).max(axis=1)
         small = rho <= 3.0 * float(np.median(rho))
         self._small = tris[small]
+        self._rho_small = float(rho[small].max()) if small.any() else 0.0
         self._big = tris[~small]
         self._k = int(min(candidates, len(self._small)))
         self._tree = cKDTree(cent[small])
@@ -86,6 +87,27 @@ class MeshProximity:
     def distance(self, points: Any) -> np.ndarray:
         """Distances of the points to the mesh (exact under the condition of the class docstring)."""
         return self.closest(points)[1]
+
+    def distance_within(self, points: Any, radius: float) -> np.ndarray:
+        """Distances of the points to the mesh where they are below ``radius``, else ``radius``:
+        exact without the class docstring's condition, so a caller can rule contacts out with it.
+        Every triangle within ``radius`` of a point has its centroid within ``radius`` plus its
+        own circumradius, so all of them are tested."""
+        pts = check_array("points", points, (None, 3))
+        out = np.full(len(pts), float(radius))
+        if len(self._small):
+            for j, cand in enumerate(self._tree.query_ball_point(pts, float(radius) + self._rho_small)):
+                if cand:
+                    t = self._small[cand]
+                    c = closest_points_on_triangles(np.broadcast_to(pts[j], (len(t), 3)), t[:, 0], t[:, 1], t[:, 2])
+                    out[j] = min(out[j], float(np.sqrt(((c - pts[j]) ** 2).sum(axis=1)).min()))
+        if len(self._big):
+            B = self._big
+            repb = np.repeat(pts, len(B), axis=0)
+            Bt = np.tile(B, (len(pts), 1, 1))
+            cb = closest_points_on_triangles(repb, Bt[:, 0], Bt[:, 1], Bt[:, 2]).reshape(len(pts), len(B), 3)
+            out = np.minimum(out, np.linalg.norm(pts[:, None, :] - cb, axis=2).min(axis=1))
+        return out
 
 
 class TurbineProximity:

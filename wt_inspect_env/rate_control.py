@@ -222,6 +222,26 @@ class RateController:
         self._beta = 1.0 - math.exp(-2 * math.pi * gains.d_cutoff_hz * dt)
         self.reset()
 
+    @property
+    def kp_folded(self) -> tuple[float, float, float]:
+        """Proportional gains times the inertia [N m s]: torque per rate error."""
+        return self._kp
+
+    @property
+    def kd_folded(self) -> tuple[float, float, float]:
+        """Derivative gains times the inertia over dt: torque per filtered rate difference."""
+        return self._kd
+
+    @property
+    def ki_dt(self) -> tuple[float, float, float]:
+        """Integral gains times dt: the integrator's increment per rate error."""
+        return self._ki_dt
+
+    @property
+    def d_beta(self) -> float:
+        """Fraction of the gap the derivative's low-pass closes per step."""
+        return self._beta
+
     def reset(self, rates=(0.0, 0.0, 0.0)) -> None:
         """Clear the integrators and start the derivative from the given measured rates."""
         self.i = [0.0, 0.0, 0.0]             # integral term, already times ki [rad/s^2]

@@ -39,9 +39,14 @@ import pybullet as p
 
 from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
 from .pybullet_refs import call_releasing
-from .rate_control import Mixer, RateController, RateGains
+from .integration import DroneIntegrator
+from .proximity import MeshProximity
+from .rate_control import Mixer, RateGains
 from .validation import check_array, check_field_types, check_positive
 from .wind import WindField, make_wind
+
+INTEGRATORS = ("compiled", "bullet")
+
 
 @dataclass(frozen=True)
 class SimConfig:
@@ -50,7 +55,11 @@ class SimConfig:
     ctrl_hz: command rate [Hz]; physics_hz: physics and rate-loop rate [Hz], a multiple of ctrl_hz.
     motor_lag / drag / rate_loop / ground switch those effects (the model-agreement test turns the
     first three off). ``rate_gains`` default to :meth:`RateGains.for_params` of the airframe.
-    ``ground_height``: z of the ground plane [m].
+    ``ground_height``: z of the ground plane [m]. ``integrator``: ``"compiled"`` integrates free
+    flight with the compiled flight core and hands drones that may touch something to PyBullet;
+    ``"bullet"`` lets PyBullet integrate every sub-step (the reference; see
+    :mod:`~wt_inspect_env.integration`). ``per_rotor_forces`` applies the four rotor forces at
+    the rotor positions instead of their resultant wherever PyBullet integrates.
     """
 
     ctrl_hz: float = 100.0
@@ -62,6 +71,7 @@ class SimConfig:
     ground_height: float = 0.0
     per_rotor_forces: bool = False
     rate_gains: RateGains | None = None
+    integrator: str = "compiled"
 
     def __post_init__(self) -> None:
         check_field_types(self, "sim ")
@@ -76,6 +86,8 @@ class SimConfig:
                 raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         if not math.isfinite(self.ground_height):
             raise ValueError(f"ground_height must be finite, got {self.ground_height!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
         if self.rate_gains is not None and not isinstance(self.rate_gains, RateGains):
             raise ValueError(f"rate_gains must be a RateGains, got {self.rate_gains!r}")
 
@@ -232,16 +244,12 @@ class QuadrotorSim:
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
         self._n_sub = config.substeps
-        gains = config.rate_gains or RateGains.for_params(params)
-        self.rate_gains = gains
+        self.rate_gains = config.rate_gains or RateGains.for_params(params)
         self.mixer = Mixer(params)
-        self.rate_controller = RateController(gains, params.inertia, self.physics_dt)
         self._plant = params
         self._thrust_scale = 1.0
-        k = SubstepConstants.of(params, config, self.mixer)
-        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
-        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
-        self._rotor_pos = [tuple(float(c) for c in r) for r in params.rotor_positions]
+        self._integrator: DroneIntegrator | None = None
+        self._proximity: dict[int, tuple[Any, MeshProximity]] = {}   # per obstacle mesh (id -> (mesh, structure))
 
         # Optional look of the obstacles in rendered images (e.g. texture.SpanTexture: .uvs and
         # .image); drawing only, physics and rays use the collision shapes.
@@ -253,6 +261,8 @@ class QuadrotorSim:
             None if obstacles is None else _mesh_arrays(obstacles))
         self._last_wind = np.zeros(3)
         self._contacts: list[dict] = []
+        self._touched = False
+        self._steps = 0
         self._build_world(p.DIRECT)
         try:  # never leak the client when the rest of the set-up rejects its input
             self.reset(np.array([0, 0, 1.0 + params.frame_height, 0, 0, 0, 0, 0, 0, 1.0]))
@@ -281,8 +291,15 @@ class QuadrotorSim:
             self._obstacle = -1
             self._obstacle_shape = -1
             self._obstacle_cache: dict[int, tuple[int, int, Any, tuple[list, list]]] = {}
+            ground = config.ground_height if config.ground else None
+            if self._integrator is None:
+                self._integrator = DroneIntegrator(params, config, cid, [self._body], [0xFFFF], ground,
+                                                   DRONE_COLLISION_GROUP)
+            else:                             # enable_gui: the same drones in a new client
+                self._integrator.rebind(cid, [self._body])
             if self._obstacle_arrays is not None:
                 self._create_obstacle(*self._obstacle_arrays, key=self._obstacle_key)
+            self._integrator.set_obstacle(0, self._obstacle_proximity())
         except BaseException:
             self.close()
             raise
@@ -298,19 +315,13 @@ class QuadrotorSim:
             return
         if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
             raise RuntimeError("enable_gui needs a display (DISPLAY is not set)")
-        state, rates, steps = self.state, self.body_rates, self._steps
-        f, thrust = list(self._f), self._thrust
-        ctrl = self.rate_controller
-        saved = (list(ctrl.i), list(ctrl.d), list(ctrl.prev))
         p.disconnect(physicsClientId=self._client)
         self._client = -1
-        self._build_world(p.GUI)
+        self._build_world(p.GUI)              # the flight core keeps every drone's state
         self._gui = True
         if self._plant is not self.params:
             self.set_plant(self._plant, self._thrust_scale)
-        self._place(state, rates)
-        self._steps, self._f, self._thrust = steps, f, thrust
-        ctrl.i, ctrl.d, ctrl.prev = saved
+        self._integrator.sync_bodies()
 
     # ------------------------------------------------------------------ lifecycle
     @property
@@ -365,6 +376,7 @@ class QuadrotorSim:
         self._obstacle_key = mesh
         if mesh is None:
             self._obstacle_arrays = None
+            self._integrator.set_obstacle(0, None)
             return
         cached = self._obstacle_cache.get(id(mesh))
         if cached is not None and cached[2] is mesh:
@@ -372,9 +384,25 @@ class QuadrotorSim:
             self._obstacle_arrays = cached[3]
             p.resetBasePositionAndOrientation(self._obstacle, (0, 0, 0), (0, 0, 0, 1), physicsClientId=cid)
             self._show_chunks(self._chunks.get(self._obstacle), True)
-            return
-        self._obstacle_arrays = _mesh_arrays(mesh)
-        self._create_obstacle(*self._obstacle_arrays, key=mesh)
+        else:
+            self._obstacle_arrays = _mesh_arrays(mesh)
+            self._create_obstacle(*self._obstacle_arrays, key=mesh)
+        self._integrator.set_obstacle(0, self._obstacle_proximity())
+
+    def _obstacle_proximity(self) -> MeshProximity | None:
+        """The exact distance structure of the active obstacle (built once per mesh object), which
+        tells the integrator when the drone may touch it."""
+        if self._obstacle_arrays is None:
+            return None
+        key = self._obstacle_key
+        hit = self._proximity.get(id(key))
+        if hit is None or hit[0] is not key:
+            verts, idx = self._obstacle_arrays
+            hit = (key, MeshProximity(np.asarray(verts)[np.asarray(idx).reshape(-1, 3)]))
+            if len(self._proximity) >= _MAX_CACHED_OBSTACLES:
+                self._proximity.pop(next(iter(self._proximity)))
+            self._proximity[id(key)] = hit
+        return hit[1]
 
     def _create_obstacle(self, verts: list, idx: list, key: Any = None) -> None:
         cid = self._client
@@ -484,10 +512,7 @@ class QuadrotorSim:
         """
         self._check_open()
         plant = checked_plant(self.params, plant, thrust_scale)
-        mixer = self.mixer if plant is self.params else Mixer(plant)
-        k = SubstepConstants.of(plant, self.config, mixer)
-        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
-        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
+        self._integrator.core.set_plant(0, plant, float(thrust_scale))
         self._plant, self._thrust_scale = plant, float(thrust_scale)
         p.changeDynamics(self._body, -1, mass=plant.mass, localInertiaDiagonal=list(plant.inertia),
                          physicsClientId=self._client)
@@ -510,33 +535,30 @@ class QuadrotorSim:
                 raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
             if self.wind is not None:
                 self.wind.reset(int(seed))
-        self._place(x, w_b)
+        # Through PyBullet once, so the stored pose is exactly what Bullet would hold.
+        cid, body = self._client, self._body
+        place_body(cid, body, x, w_b)
+        pos, quat = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        vel, omega = p.getBaseVelocity(body, physicsClientId=cid)
+        self._integrator.core.reset(0, pos, quat, vel, omega, w_b)   # rotors at the plant's hover thrust
+        self._integrator.placed(0)
         self._steps = 0
-        self.rate_controller.reset(w_b.tolist())
-        # The rotors start holding the plant's weight (= params' unless set_plant changed it).
-        hover = self._plant.weight / self._thrust_scale
-        self._f = [hover / 4.0] * 4
-        self._thrust = hover                        # rate_loop=False: lagged collective
         self._contacts = []
         self._in_collision = False
         self._last_wind = self._wind_at(0.0)
         self._const_wind = self.wind is None or self.wind.is_constant
 
-    def _place(self, x: np.ndarray, w_b: np.ndarray) -> None:
-        """Set pose and velocities in PyBullet from a model state and body rates."""
-        place_body(self._client, self._body, x, w_b)
-        self._fetch()
-
-    def _fetch(self) -> None:
-        cid = self._client
-        self._pos, self._quat = p.getBasePositionAndOrientation(self._body, physicsClientId=cid)
-        self._vel, self._omega = p.getBaseVelocity(self._body, physicsClientId=cid)
-
     def _wind_at(self, t: float) -> np.ndarray:
         if self.wind is None:
             return np.zeros(3)
-        v = self.wind(t, np.array([self._pos]))
-        return v[0]
+        v = self.wind(t, self._integrator.core.pos[0:1])
+        return np.array(v[0], dtype=float)
+
+    @property
+    def integrator(self) -> DroneIntegrator:
+        """The stepping loop (its ``core`` holds the flight state; counters say how many steps
+        PyBullet integrated)."""
+        return self._integrator
 
     @property
     def time(self) -> float:
@@ -546,30 +568,31 @@ class QuadrotorSim:
     @property
     def state(self) -> np.ndarray:
         """(10,) [position, body velocity, quaternion (x, y, z, w)], the model's convention."""
-        R = p.getMatrixFromQuaternion(self._quat)
-        vx, vy, vz = self._vel
-        # R^T v written out (as the rate loop does): no BLAS kernel to reorder the sums, so the
-        # batched simulator, which does the same over all drones, agrees bit for bit.
-        return np.array([*self._pos, R[0] * vx + R[3] * vy + R[6] * vz, R[1] * vx + R[4] * vy + R[7] * vz,
-                         R[2] * vx + R[5] * vy + R[8] * vz, *self._quat])
+        core = self._integrator.core
+        q = core.quat[0].tolist()
+        R = p.getMatrixFromQuaternion(q)
+        vx, vy, vz = core.vel[0].tolist()
+        return np.array([*core.pos[0].tolist(), R[0] * vx + R[3] * vy + R[6] * vz,
+                         R[1] * vx + R[4] * vy + R[7] * vz, R[2] * vx + R[5] * vy + R[8] * vz, *q])
 
     @property
     def body_rates(self) -> np.ndarray:
         """(3,) body angular velocity (p, q, r) [rad/s]."""
-        R = p.getMatrixFromQuaternion(self._quat)
-        ox, oy, oz = self._omega
+        core = self._integrator.core
+        R = p.getMatrixFromQuaternion(core.quat[0].tolist())
+        ox, oy, oz = core.omega[0].tolist()
         return np.array([R[0] * ox + R[3] * oy + R[6] * oz, R[1] * ox + R[4] * oy + R[7] * oz,
                          R[2] * ox + R[5] * oy + R[8] * oz])
 
     @property
     def world_velocity(self) -> np.ndarray:
-        return np.asarray(self._vel, float)
+        return self._integrator.core.vel[0].copy()
 
     @property
     def rotor_thrusts(self) -> np.ndarray:
         """(4,) current rotor thrusts [N] (after motor lag and saturation; times the plant's
         ``thrust_scale``)."""
-        return np.array(self._f) * self._thrust_scale
+        return self._integrator.core.rotor[0] * self._thrust_scale
 
     @property
     def wind_velocity(self) -> np.ndarray:
@@ -588,6 +611,12 @@ class QuadrotorSim:
         towards the drone), ``distance`` (negative = penetration [m]), ``normal_force`` [N]."""
         return [dict(c) for c in self._contacts]
 
+    def sync_scene(self) -> None:
+        """Put the drone's PyBullet body at its current pose (the flight core integrates free
+        flight without PyBullet; renders of the scene call this first)."""
+        self._check_open()
+        self._integrator.sync_bodies()
+
     # ------------------------------------------------------------------ stepping
     def step(self, command: Any) -> None:
         """Hold ``command`` = [p, q, r, T] for one control period (1 / ctrl_hz)."""
@@ -598,156 +627,28 @@ class QuadrotorSim:
             raise ValueError(f"command must be a numeric array [p, q, r, T], got {command!r}") from None
         if cmd.shape != (4,):
             raise ValueError(f"command must have shape (4,) [p, q, r, T], got shape {cmd.shape}")
-        pc, qc, rc, T = cmd.tolist()
-        if not (math.isfinite(pc) and math.isfinite(qc) and math.isfinite(rc) and math.isfinite(T)):
+        if not np.isfinite(cmd).all():
             raise ValueError(f"command must be finite, got {cmd.tolist()}")
-        if T < 0:
-            raise ValueError(f"command thrust T must be >= 0 N (rotors cannot push down), got {T!r}")
-
+        if cmd[3] < 0:
+            raise ValueError(f"command thrust T must be >= 0 N (rotors cannot push down), got {float(cmd[3])!r}")
         if not self._const_wind:
             self._last_wind = self._wind_at(self._steps * self.dt)
-        wx, wy, wz = self._last_wind.tolist()
-        if self.config.rate_loop:
-            self._run_rate_loop(pc, qc, rc, T, wx, wy, wz)
-        else:
-            self._run_imposed_rates(pc, qc, rc, T, wx, wy, wz)
+        integ = self._integrator
+        integ.commands[0] = cmd
+        integ.winds[0] = self._last_wind
+        self._touched = False
+        integ.step(self._record_contacts)
+        self._in_collision = self._touched
+        if not self._touched:
+            self._contacts = []
         self._steps += 1
+        if self._gui:
+            integ.sync_bodies()
 
-    def _drag_body(self, R, vx, vy, vz, wx, wy, wz) -> tuple[float, float, float]:
-        """Drag force in body axes for world velocity v and wind w (R row-major body-to-world)."""
-        ax, ay, az = vx - wx, vy - wy, vz - wz
-        # v_rel in body axes = R^T (v - w)
-        bx = R[0] * ax + R[3] * ay + R[6] * az
-        by = R[1] * ax + R[4] * ay + R[7] * az
-        bz = R[2] * ax + R[5] * ay + R[8] * az
-        sp = math.sqrt(bx * bx + by * by + bz * bz)
-        dl, dq = self._lin_drag, self._quad_drag
-        return (-(dl[0] + dq[0] * sp) * bx, -(dl[1] + dq[1] * sp) * by, -(dl[2] + dq[2] * sp) * bz)
-
-    def _run_rate_loop(self, pc, qc, rc, T, wx, wy, wz) -> None:
-        cid, body = self._client, self._body
-        ctrl_update = self.rate_controller.update
-        mixer = self.mixer
-        mix = mixer.mix
-        alpha, beta = self._alpha, self._beta
-        (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
-        ts = self._thrust_scale
-        scaled = ts != 1.0
-        has_drag = self._has_drag
-        dlx, dly, dlz = self._lin_drag
-        dqx, dqy, dqz = self._quad_drag
-        sqrt = math.sqrt
-        per_rotor = self.config.per_rotor_forces
-        rotor_pos = self._rotor_pos
-        applyForce, applyTorque = p.applyExternalForce, p.applyExternalTorque
-        stepSim, getPose, getVel = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
-        getMat, getContacts = p.getMatrixFromQuaternion, p.getContactPoints
-        LINK = p.LINK_FRAME
-        zero = (0.0, 0.0, 0.0)
-        f0, f1, f2, f3 = self._f
-        pos, quat, vel, omega = self._pos, self._quat, self._vel, self._omega
-        touched = False
-        for _ in range(self._n_sub):
-            R = getMat(quat)
-            ox, oy, oz = omega
-            pm = R[0] * ox + R[3] * oy + R[6] * oz
-            qm = R[1] * ox + R[4] * oy + R[7] * oz
-            rm = R[2] * ox + R[5] * oy + R[8] * oz
-            tx, ty, tz = ctrl_update(pc, qc, rc, pm, qm, rm, mixer.saturation)
-            c0, c1, c2, c3 = mix(T, tx, ty, tz)
-            g0 = f0 + beta * (c0 - f0)      # sub-step mean thrusts (applied) ...
-            g1 = f1 + beta * (c1 - f1)
-            g2 = f2 + beta * (c2 - f2)
-            g3 = f3 + beta * (c3 - f3)
-            f0 += alpha * (c0 - f0)         # ... and end-of-sub-step rotor states
-            f1 += alpha * (c1 - f1)
-            f2 += alpha * (c2 - f2)
-            f3 += alpha * (c3 - f3)
-            if scaled:                      # a randomised plant's thrust factor (set_plant)
-                g0 *= ts
-                g1 *= ts
-                g2 *= ts
-                g3 *= ts
-            if has_drag:  # inlined _drag_body: v_rel in body axes, linear + quadratic drag
-                ax_, ay_, az_ = vel[0] - wx, vel[1] - wy, vel[2] - wz
-                bx = R[0] * ax_ + R[3] * ay_ + R[6] * az_
-                by = R[1] * ax_ + R[4] * ay_ + R[7] * az_
-                bz = R[2] * ax_ + R[5] * ay_ + R[8] * az_
-                sp = sqrt(bx * bx + by * by + bz * bz)
-                dx = -(dlx + dqx * sp) * bx
-                dy = -(dly + dqy * sp) * by
-                dz = -(dlz + dqz * sp) * bz
-            else:
-                dx = dy = dz = 0.0
-            if per_rotor:
-                for pos_i, f_i in zip(rotor_pos, (g0, g1, g2, g3)):
-                    applyForce(body, -1, (0.0, 0.0, f_i), pos_i, LINK, physicsClientId=cid)
-                applyForce(body, -1, (dx, dy, dz), zero, LINK, physicsClientId=cid)
-                applyTorque(body, -1, (0.0, 0.0, a30 * g0 + a31 * g1 + a32 * g2 + a33 * g3),
-                            LINK, physicsClientId=cid)
-            else:
-                applyForce(body, -1, (dx, dy, dz + g0 + g1 + g2 + g3), zero, LINK,
-                           physicsClientId=cid)
-                applyTorque(body, -1, (a10 * g0 + a11 * g1 + a12 * g2 + a13 * g3,
-                                       a20 * g0 + a21 * g1 + a22 * g2 + a23 * g3,
-                                       a30 * g0 + a31 * g1 + a32 * g2 + a33 * g3),
-                            LINK, physicsClientId=cid)
-            stepSim(physicsClientId=cid)
-            pos, quat = getPose(body, physicsClientId=cid)
-            vel, omega = getVel(body, physicsClientId=cid)
-            cps = getContacts(bodyA=body, physicsClientId=cid)
-            if cps:
-                touched |= self._record_contacts(cps)
-        self._f = [f0, f1, f2, f3]
-        self._pos, self._quat, self._vel, self._omega = pos, quat, vel, omega
-        self._in_collision = touched
-        if not touched:
-            self._contacts = []
-
-    def _run_imposed_rates(self, pc, qc, rc, T, wx, wy, wz) -> None:
-        cid, body = self._client, self._body
-        alpha, beta = self._alpha, self._beta
-        Jx, Jy, Jz = self._plant.inertia
-        ts = self._thrust_scale
-        touched = False
-        for _ in range(self._n_sub):
-            R = p.getMatrixFromQuaternion(self._quat)
-            # Impose the commanded body rates (in world axes for PyBullet) ...
-            om = (R[0] * pc + R[1] * qc + R[2] * rc,
-                  R[3] * pc + R[4] * qc + R[5] * rc,
-                  R[6] * pc + R[7] * qc + R[8] * rc)
-            p.resetBaseVelocity(body, angularVelocity=om, physicsClientId=cid)
-            # ... and cancel the gyroscopic torque so they stay constant through the sub-step.
-            gyro = (qc * Jz * rc - rc * Jy * qc, rc * Jx * pc - pc * Jz * rc,
-                    pc * Jy * qc - qc * Jx * pc)
-            thrust = self._thrust + beta * (T - self._thrust)     # sub-step mean
-            self._thrust += alpha * (T - self._thrust)
-            if self._has_drag:
-                dx, dy, dz = self._drag_body(R, *self._vel, wx, wy, wz)
-            else:
-                dx = dy = dz = 0.0
-            if ts != 1.0:
-                thrust *= ts
-            p.applyExternalForce(body, -1, (dx, dy, dz + thrust), (0.0, 0.0, 0.0),
-                                 p.LINK_FRAME, physicsClientId=cid)
-            p.applyExternalTorque(body, -1, gyro, p.LINK_FRAME, physicsClientId=cid)
-            p.stepSimulation(physicsClientId=cid)
-            self._fetch()
-            cps = p.getContactPoints(bodyA=body, physicsClientId=cid)
-            if cps:
-                touched |= self._record_contacts(cps)
-        self._f = [self._thrust / 4.0] * 4
-        self._in_collision = touched
-        if not touched:
-            self._contacts = []
-
-    _CONTACT_TOL = 1e-3  # Bullet keeps points a little beyond touching; count only real contact
-
-    def _record_contacts(self, cps) -> bool:
+    def _record_contacts(self, i: int, substep: int, cps) -> None:
+        """The integrator's contact sink: keep the touching sub-step's points."""
         found = []
         for c in cps:
-            if c[8] > self._CONTACT_TOL:
-                continue
             other = c[2]
             found.append({
                 "other": "ground" if other == self._ground else
@@ -758,7 +659,5 @@ class QuadrotorSim:
                 "normal_force": float(c[9]),
                 "time": (self._steps + 1) * self.dt,
             })
-        if found:
-            self._contacts = found
-            return True
-        return False
+        self._contacts = found
+        self._touched = True
