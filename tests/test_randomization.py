@@ -203,7 +203,7 @@ def test_vector_env_reports_each_drones_draw_and_flies_it():
         draws = list(u.randomization)
         assert len({d.plant.mass for d in draws}) == 3
         for i, d in enumerate(draws):
-            assert u.sim.plants[i] is d.plant and u.sim._thrust_scale[i] == d.thrust_scale
+            assert u.sim.plants[i] is d.plant and u.sim.thrust_scales[i] == d.thrust_scale
         hover = np.tile(u.scaling.hover_action(), (3, 1))
         for _ in range(5):
             _, _, term, trunc, info = venv.step(hover)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 from typing import Any, Mapping
 
 from .camera import CameraConfig
+from .flight_core import INTEGRATORS
 from .quadrotor import QuadrotorParams, get_preset
 from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
@@ -92,7 +93,9 @@ class EnvConfig:
         blown out of its 0.1 m band).
     safety_margin: SM band [m]. camera_hz: coverage frames per second (a real inspection camera
         shoots a few frames per second; 10 Hz keeps the env fast). ctrl_hz / physics_hz: command and
-        physics rates. time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
+        physics rates. integrator: ``"compiled"`` (free flight in the compiled flight core, PyBullet
+        near contacts) or ``"bullet"`` (PyBullet integrates every sub-step; the reference).
+        time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
     start_noise: standard deviation [m] of a random offset of the start position from the ideal
         stand-off pose (0 for reproducible MPC evaluation; RL training uses > 0).
     start_offset: a fixed 3-vector [m] (world frame) added to the ideal stand-off pose of every
@@ -150,6 +153,7 @@ class EnvConfig:
     surface_index: int = 0
     ctrl_hz: float = 100.0
     physics_hz: float = 400.0
+    integrator: str = "compiled"
     camera_hz: float = 10.0
     time_limit_s: float | None = None
     start_noise: float = 0.0
@@ -181,6 +185,7 @@ class EnvConfig:
             raise ValueError(f"drone must be a preset name or QuadrotorParams, got {self.drone!r}")
         check_positive("reference_speed", self.reference_speed)
         check_choice("reference_mode", self.reference_mode, REFERENCE_MODES)
+        check_choice("integrator", self.integrator, INTEGRATORS)
         check_positive("standoff", self.standoff)
         if self.reference_lag is None:
             put("reference_lag", self.standoff / 7.0)

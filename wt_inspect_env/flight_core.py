@@ -49,6 +49,7 @@ _FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 _ABI = 2
 _LOCK = threading.Lock()
 _LIBS: dict[str, ctypes.CDLL] = {}
+INTEGRATORS = ("compiled", "bullet")   # SimConfig.integrator: this core (+ PyBullet near contacts), or PyBullet alone
 MAX_COORDINATE_VELOCITY = 100.0    # Bullet clamps every velocity component to this [m/s, rad/s]
 
 _D = ctypes.c_double

@@ -31,7 +31,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pybullet as p
 
-from .flight_core import FlightCore
+from .flight_core import INTEGRATORS, FlightCore  # noqa: F401 - INTEGRATORS re-exported
 from .proximity import MeshProximity
 from .quadrotor import GRAVITY, QuadrotorParams
 

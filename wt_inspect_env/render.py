@@ -68,6 +68,7 @@ def camera_images(sim, camera, state: np.ndarray, resolution: tuple[int, int], f
     ``sim``: the :class:`~wt_inspect_env.sim.QuadrotorSim` (only the obstacle chunks in the
     frustum are drawn - the same image, a fraction of the triangles); ``camera``: the env's
     :class:`~wt_inspect_env.camera.GimbalCamera`."""
+    sim.sync_scene()                       # the drone's body where the drone is (the flight core flies it)
     origin, R = camera.pose(state[0:3], state[6:10])
     fwd, down = R[:, 2], R[:, 1]
     w, h = resolution
@@ -86,6 +87,7 @@ def camera_images(sim, camera, state: np.ndarray, resolution: tuple[int, int], f
 def render_views(env: "WindTurbineInspectionEnv") -> np.ndarray:
     """(240, 640, 3) uint8: onboard camera (left) and chase view (right)."""
     env.sim.show_obstacle_chunks(True)     # the chase view sees the whole turbine
+    env.sim.sync_scene()                   # ... and the drone's body where the drone is
     state = env.sim.state
     origin, R = env.camera.pose(state[0:3], state[6:10])
     fwd, down = R[:, 2], R[:, 1]

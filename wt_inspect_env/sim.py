@@ -39,14 +39,11 @@ import pybullet as p
 
 from .quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
 from .pybullet_refs import call_releasing
-from .integration import DroneIntegrator
+from .integration import INTEGRATORS, DroneIntegrator
 from .proximity import MeshProximity
 from .rate_control import Mixer, RateGains
 from .validation import check_array, check_field_types, check_positive
 from .wind import WindField, make_wind
-
-INTEGRATORS = ("compiled", "bullet")
-
 
 @dataclass(frozen=True)
 class SimConfig:

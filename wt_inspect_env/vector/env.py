@@ -129,7 +129,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.dt = 1.0 / cfg.ctrl_hz
         self._camera_every = max(1, int(round(cfg.ctrl_hz / cfg.camera_hz)))
         self.mission = mission = build_mission(cfg)
-        self.sim = BatchedQuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz), n,
+        self.sim = BatchedQuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz, integrator=cfg.integrator), n,
                                        geometries=[t.mesh for t in mission.turbines], winds=self.winds)
         self.camera = GimbalCamera(cfg.camera)
         ins = mission.inspected

@@ -7,29 +7,14 @@ never with another drone, and the camera rays of a drone see the ground and its 
 each drone lives in the world of a single :class:`QuadrotorSim`, and drone ``i`` under the same
 commands follows the single simulator bit for bit (a test checks it).
 
-What is batched: the PX4-like rate PID, the mixer's unsaturated path, the motor lag, the drag and the
-rotation matrices are NumPy operations over all drones, written with the same floating-point
-operations in the same order as the scalar code of :class:`QuadrotorSim` (products and sums in the
-same association, the rotation matrix with Bullet's own quaternion formula), which is what makes
-the results identical rather than merely close.
-
-Where a per-drone Python loop remains, and why:
-
-* applying the wrench and reading the pose and velocity back: PyBullet has no batched calls for
-  ``applyExternalForce``/``applyExternalTorque``/``getBasePositionAndOrientation``/``getBaseVelocity``;
-  these four calls per drone and physics sub-step are most of what a drone-step costs;
-* the mixer when a rotor saturates: the desaturation logic is branchy (priorities, rescaling) and
-  rare in flight, so the drones that need it run the scalar :meth:`Mixer.mix`;
-* the wind: each drone owns an arbitrary, seeded :class:`~wt_inspect_env.wind.WindField` (a user
-  callable in general), evaluated once per control step.
-
-One ``stepSimulation`` and one ``getContactPoints`` per sub-step serve all drones.
+Both simulators step their drones with the same :class:`~wt_inspect_env.integration.DroneIntegrator`:
+one call into the compiled flight core advances every drone in free flight through all physics
+sub-steps; only drones that may touch the ground or their geometry during the step are handed to
+PyBullet. The wind stays per drone (each owns an arbitrary, seeded
+:class:`~wt_inspect_env.wind.WindField`), evaluated once per control step.
 """
 from __future__ import annotations
 
-from itertools import chain
-
-_flat = chain.from_iterable
 from typing import Any, Sequence
 
 import numpy as np
@@ -37,9 +22,10 @@ import pybullet as p
 
 from ..quadrotor import QuadrotorParams
 from ..pybullet_refs import call_releasing
-from ..rate_control import Mixer, RateController, RateGains, mix_saturated
-from ..sim import (DRONE_COLLISION_GROUP, SimConfig, SubstepConstants, _mesh_arrays, checked_plant, checked_state,
-                   create_drone_body, new_client, place_body)
+from ..integration import DroneIntegrator
+from ..proximity import MeshProximity
+from ..sim import (DRONE_COLLISION_GROUP, SimConfig, _mesh_arrays, checked_plant, checked_state, create_drone_body,
+                   new_client, place_body)
 from ..wind import WindField, wind_velocities
 
 GROUND_GROUP = 1
@@ -82,9 +68,6 @@ class BatchedQuadrotorSim:
                  geometries: Sequence[Any] = (), winds: Sequence[WindField | None] | None = None) -> None:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"num_envs must be a positive integer, got {n!r}")
-        if not config.rate_loop or config.per_rotor_forces:
-            raise ValueError("the batched simulator supports rate_loop=True, per_rotor_forces=False only, "
-                             f"got rate_loop={config.rate_loop!r}, per_rotor_forces={config.per_rotor_forces!r}")
         if len(geometries) > _MAX_GEOMETRIES:
             raise ValueError(f"at most {_MAX_GEOMETRIES} geometries, got {len(geometries)}")
         self.n = n = int(n)
@@ -96,60 +79,41 @@ class BatchedQuadrotorSim:
         self._varying = [i for i, w in enumerate(winds) if w is not None and not w.is_constant]
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
-        self._n_sub = config.substeps
-        gains = config.rate_gains or RateGains.for_params(params)
-        # The scalar controller is the source of the folded gains (and of the reference semantics).
-        ref = RateController(gains, params.inertia, self.physics_dt)
-        self._kp, self._kd, self._ki_dt, self._J = ref._kp, ref._kd, ref._ki_dt, ref._J
-        self._ilim = tuple(float(x) for x in gains.integral_limit)
-        self._d_beta = ref._beta
-        self.mixer = Mixer(params)
-        B = self.mixer
-        self._bt, self._bx, self._by, self._bz = B._bt, B._bx, B._by, B._bz
-        k = SubstepConstants.of(params, config, self.mixer)
-        self._alpha, self._beta, self._A_tau = k.alpha, k.beta, k.A_tau
-        self._lin_drag, self._quad_drag, self._has_drag = k.lin_drag, k.quad_drag, k.has_drag
-
         self._client = -1
         self._build_world(geometries)
-        z = np.zeros((n, 3))
-        self.pos, self.vel, self.omega = z.copy(), z.copy(), z.copy()
-        self.quat = np.tile([0.0, 0.0, 0.0, 1.0], (n, 1))
-        self.f = np.full((n, 4), params.weight / 4.0)
-        # Rate-loop state axis-major (3, n), so each axis is one contiguous row for the NumPy ops.
-        self.i_term, self.d_term, self.prev_rates = np.zeros((3, n)), np.zeros((3, n)), np.zeros((3, n))
-        self.saturation = np.zeros((3, n), dtype=np.int64)
+        core = self._integrator.core
+        # Views of the flight core's arrays (world frame), valid for the simulator's lifetime.
+        self.pos, self.vel, self.omega, self.quat = core.pos, core.vel, core.omega, core.quat
         self.steps = np.zeros(n, dtype=np.int64)
         self.in_collision = np.zeros(n, dtype=bool)
-        self.last_wind = z.copy()
+        self.last_wind = core.winds
         self.geometry = np.zeros(n, dtype=np.int64)
-        self.plants: list[QuadrotorParams] = [params] * n
-        self._thrust_scale: np.ndarray | None = None    # per drone, once a plant differs (set_plant)
+
+    @property
+    def f(self) -> np.ndarray:
+        """(n, 4) rotor thrusts [N] before each plant's thrust factor."""
+        return self._integrator.core.rotor
+
+    @property
+    def plants(self) -> list[QuadrotorParams]:
+        return self._integrator.core.plants
+
+    @property
+    def thrust_scales(self) -> np.ndarray:
+        """(n,) each plant's thrust factor (:meth:`set_plant`)."""
+        return self._integrator.core.thrust_scale
+
+    @property
+    def integrator(self) -> DroneIntegrator:
+        return self._integrator
 
     # ------------------------------------------------------------------ plants
     def set_plant(self, i: int, plant: QuadrotorParams | None = None, thrust_scale: float = 1.0) -> None:
         """:meth:`QuadrotorSim.set_plant` for drone ``i``: its physics (mass, inertia, motor lag, drag,
         the wrench's torque rows, a thrust factor) follow ``plant``, the controller side stays
-        ``params``. The per-sub-step constants become per-drone arrays on the first call (the same
-        elementwise operations, so each drone still matches the single simulator bit for bit)."""
+        ``params``."""
         plant = checked_plant(self.params, plant, thrust_scale)
-        n = self.n
-        if self._thrust_scale is None:      # scalars -> per-drone arrays
-            self._alpha, self._beta = np.full(n, self._alpha), np.full(n, self._beta)
-            self._A_tau = tuple(tuple(np.full(n, a) for a in row) for row in self._A_tau)
-            self._lin_drag = tuple(np.full(n, d) for d in self._lin_drag)
-            self._quad_drag = tuple(np.full(n, d) for d in self._quad_drag)
-            self._thrust_scale = np.ones(n)
-        k = SubstepConstants.of(plant, self.config, self.mixer if plant is self.params else Mixer(plant))
-        self._alpha[i], self._beta[i] = k.alpha, k.beta
-        for row, vals in zip(self._A_tau, k.A_tau):
-            for arr, v in zip(row, vals):
-                arr[i] = v
-        for arr, v in zip(self._lin_drag + self._quad_drag, k.lin_drag + k.quad_drag):
-            arr[i] = v
-        self._has_drag = self._has_drag or k.has_drag
-        self._thrust_scale[i] = float(thrust_scale)
-        self.plants[i] = plant
+        self._integrator.core.set_plant(i, plant, float(thrust_scale))
         p.changeDynamics(self.body_ids[i], -1, mass=plant.mass, localInertiaDiagonal=list(plant.inertia),
                          physicsClientId=self._client)
 
@@ -165,6 +129,7 @@ class BatchedQuadrotorSim:
                                                    physicsClientId=cid)
                 p.setCollisionFilterGroupMask(self.ground_id, -1, GROUND_GROUP, 0xFFFF, physicsClientId=cid)
             self.geometry_ids: list[int] = []
+            self._proximity: list[MeshProximity] = []
             for g, mesh in enumerate(geometries):
                 verts, idx = _mesh_arrays(mesh)
                 shape = call_releasing(p.createCollisionShape, p.GEOM_MESH, vertices=verts, indices=idx,
@@ -172,6 +137,7 @@ class BatchedQuadrotorSim:
                 body = p.createMultiBody(0.0, shape, physicsClientId=cid)
                 p.setCollisionFilterGroupMask(body, -1, geometry_group(g), 0xFFFF, physicsClientId=cid)
                 self.geometry_ids.append(body)
+                self._proximity.append(MeshProximity(np.asarray(verts)[np.asarray(idx).reshape(-1, 3)]))
             box = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
                                          physicsClientId=cid)
             self.body_ids: list[int] = []
@@ -179,16 +145,18 @@ class BatchedQuadrotorSim:
                 self.body_ids.append(create_drone_body(cid, params, box))
             self._drone_index = {b: i for i, b in enumerate(self.body_ids)}
             self._geometry_index = {b: g for g, b in enumerate(self.geometry_ids)}
+            ground = config.ground_height if config.ground else None
+            self._integrator = DroneIntegrator(params, config, cid, self.body_ids, [self._mask(0)] * n, ground,
+                                               DRONE_COLLISION_GROUP)
             for i in range(n):
-                self._apply_mask(i, 0)
+                p.setCollisionFilterGroupMask(self.body_ids[i], -1, DRONE_COLLISION_GROUP, 0, physicsClientId=cid)
+                self._integrator.set_obstacle(i, self._proximity[0] if self._proximity else None)
         except BaseException:
             self.close()
             raise
 
-    def _apply_mask(self, i: int, g: int) -> None:
-        mask = GROUND_GROUP | (geometry_group(g) if self.geometry_ids else 0)
-        p.setCollisionFilterGroupMask(self.body_ids[i], -1, DRONE_COLLISION_GROUP, mask,
-                                      physicsClientId=self._client)
+    def _mask(self, g: int) -> int:
+        return GROUND_GROUP | (geometry_group(g) if self.geometry_ids else 0)
 
     def set_wind(self, i: int, wind: WindField | None) -> None:
         """Give drone ``i`` another wind field (used from its next reset on)."""
@@ -200,7 +168,8 @@ class BatchedQuadrotorSim:
         if not 0 <= g < len(self.geometry_ids):
             raise ValueError(f"geometry must be in [0, {len(self.geometry_ids)}), got {g!r}")
         if self.geometry[i] != g:
-            self._apply_mask(i, g)
+            self._integrator.set_mask(i, self._mask(g))
+            self._integrator.set_obstacle(i, self._proximity[g])
             self.geometry[i] = g
 
     @property
@@ -222,6 +191,10 @@ class BatchedQuadrotorSim:
         except Exception:  # pragma: no cover - interpreter shutdown
             pass
 
+    def sync_scene(self) -> None:
+        """Put every drone's PyBullet body at its current pose (for renders of the scene)."""
+        self._integrator.sync_bodies()
+
     # ------------------------------------------------------------------ reset / state
     def reset_drone(self, i: int, state: np.ndarray) -> None:
         """Place drone ``i`` at ``state`` = [p, v_body, q] at rest in the rate loop (as
@@ -231,12 +204,9 @@ class BatchedQuadrotorSim:
         place_body(cid, body, x, np.zeros(3))
         pos, quat = p.getBasePositionAndOrientation(body, physicsClientId=cid)
         vel, omega = p.getBaseVelocity(body, physicsClientId=cid)
-        self.pos[i], self.quat[i], self.vel[i], self.omega[i] = pos, quat, vel, omega
+        self._integrator.core.reset(i, pos, quat, vel, omega, np.zeros(3))
+        self._integrator.placed(i)
         self.steps[i] = 0
-        self.i_term[:, i] = self.d_term[:, i] = self.prev_rates[:, i] = 0.0
-        self.saturation[:, i] = 0
-        ts = 1.0 if self._thrust_scale is None else float(self._thrust_scale[i])
-        self.f[i] = self.plants[i].weight / ts / 4.0      # as QuadrotorSim.reset: the plant's hover
         self.in_collision[i] = False
         self.last_wind[i] = self._wind_at(i, 0.0)
 
@@ -278,121 +248,22 @@ class BatchedQuadrotorSim:
     # ------------------------------------------------------------------ stepping
     def step(self, commands: np.ndarray) -> None:
         """Hold ``commands`` (n, 4) = [p, q, r, T] per drone (finite, T >= 0) for one control period."""
-        n = self.n
         if self._varying:
             self.last_wind[self._varying] = wind_velocities([self.winds[i] for i in self._varying],
                                                             self.steps[self._varying] * self.dt,
                                                             self.pos[self._varying])
-        pc, qc, rc, T = (np.ascontiguousarray(commands[:, k]) for k in range(4))
-        wx, wy, wz = self.last_wind[:, 0], self.last_wind[:, 1], self.last_wind[:, 2]
-        cid = self._client
-        bodies = self.body_ids
-        applyForce, applyTorque = p.applyExternalForce, p.applyExternalTorque
-        stepSim, getPose, getVel = p.stepSimulation, p.getBasePositionAndOrientation, p.getBaseVelocity
-        getContacts = p.getContactPoints
-        LINK = p.LINK_FRAME
-        zero = (0.0, 0.0, 0.0)
-        alpha, beta = self._alpha, self._beta
-        (a10, a11, a12, a13), (a20, a21, a22, a23), (a30, a31, a32, a33) = self._A_tau
-        ts = self._thrust_scale
-        dlx, dly, dlz = self._lin_drag
-        dqx, dqy, dqz = self._quad_drag
-        bt, bx, by, bz = self._bt, self._bx, self._by, self._bz
-        f_lo, f_hi = self.mixer.f_min, self.mixer.f_max
-        f = self.f
-        f0, f1, f2, f3 = f[:, 0].copy(), f[:, 1].copy(), f[:, 2].copy(), f[:, 3].copy()
-        pos, quat, vel, omega = self.pos, self.quat, self.vel, self.omega
-        touched = np.zeros(n, dtype=bool)
-        for _ in range(self._n_sub):
-            R = bullet_rotation(quat)
-            ox, oy, oz = omega[:, 0], omega[:, 1], omega[:, 2]
-            pm = R[0] * ox + R[3] * oy + R[6] * oz
-            qm = R[1] * ox + R[4] * oy + R[7] * oz
-            rm = R[2] * ox + R[5] * oy + R[8] * oz
-            tx, ty, tz = self._rate_pid(pc, qc, rc, pm, qm, rm)
-            c0 = T * bt[0] + tx * bx[0] + ty * by[0] + tz * bz[0]
-            c1 = T * bt[1] + tx * bx[1] + ty * by[1] + tz * bz[1]
-            c2 = T * bt[2] + tx * bx[2] + ty * by[2] + tz * bz[2]
-            c3 = T * bt[3] + tx * bx[3] + ty * by[3] + tz * bz[3]
-            ok = ((f_lo <= c0) & (c0 <= f_hi) & (f_lo <= c1) & (c1 <= f_hi) & (f_lo <= c2) & (c2 <= f_hi)
-                  & (f_lo <= c3) & (c3 <= f_hi))
-            self.saturation[:, ok] = 0
-            if not ok.all():   # the saturated drones take the desaturating mixer, batched
-                idx = np.flatnonzero(~ok)
-                (c0[idx], c1[idx], c2[idx], c3[idx]), self.saturation[:, idx] = mix_saturated(
-                    self.mixer, T[idx], tx[idx], ty[idx], tz[idx])
-            g0 = f0 + beta * (c0 - f0)
-            g1 = f1 + beta * (c1 - f1)
-            g2 = f2 + beta * (c2 - f2)
-            g3 = f3 + beta * (c3 - f3)
-            f0 = f0 + alpha * (c0 - f0)
-            f1 = f1 + alpha * (c1 - f1)
-            f2 = f2 + alpha * (c2 - f2)
-            f3 = f3 + alpha * (c3 - f3)
-            if ts is not None:                # randomised plants' thrust factors (set_plant)
-                g0, g1, g2, g3 = g0 * ts, g1 * ts, g2 * ts, g3 * ts
-            if self._has_drag:
-                ax_, ay_, az_ = vel[:, 0] - wx, vel[:, 1] - wy, vel[:, 2] - wz
-                bxv = R[0] * ax_ + R[3] * ay_ + R[6] * az_
-                byv = R[1] * ax_ + R[4] * ay_ + R[7] * az_
-                bzv = R[2] * ax_ + R[5] * ay_ + R[8] * az_
-                sp = np.sqrt(bxv * bxv + byv * byv + bzv * bzv)
-                dx = -(dlx + dqx * sp) * bxv
-                dy = -(dly + dqy * sp) * byv
-                dz = -(dlz + dqz * sp) * bzv
-            else:
-                dx = dy = dz = np.zeros(n)
-            force = np.stack([dx, dy, dz + g0 + g1 + g2 + g3], axis=1).tolist()
-            torque = np.stack([a10 * g0 + a11 * g1 + a12 * g2 + a13 * g3,
-                               a20 * g0 + a21 * g1 + a22 * g2 + a23 * g3,
-                               a30 * g0 + a31 * g1 + a32 * g2 + a33 * g3], axis=1).tolist()
-            for b, fo, to in zip(bodies, force, torque):    # no batched PyBullet call (module doc)
-                applyForce(b, -1, fo, zero, LINK, physicsClientId=cid)
-                applyTorque(b, -1, to, LINK, physicsClientId=cid)
-            stepSim(physicsClientId=cid)
-            states = [(getPose(b, physicsClientId=cid), getVel(b, physicsClientId=cid)) for b in bodies]
-            flat = np.fromiter(_flat(_flat(_flat(states))), float, 13 * n).reshape(n, 13)
-            pos, quat, vel, omega = flat[:, 0:3], flat[:, 3:7], flat[:, 7:10], flat[:, 10:13]
-            cps = getContacts(physicsClientId=cid)
-            if cps:
-                self._mark_contacts(cps, touched)
-        self.f = np.stack([f0, f1, f2, f3], axis=1)
-        self.pos, self.quat, self.vel, self.omega = pos, quat, vel, omega
-        self.in_collision = touched
+        integ = self._integrator
+        integ.commands[:] = commands
+        self.in_collision[:] = False
+        integ.step(self._mark_contacts)
         self.steps += 1
 
-    def _rate_pid(self, pc, qc, rc, pm, qm, rm) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """:meth:`RateController.update` over all drones (same operations; anti-windup per axis)."""
-        beta = self._d_beta
-        d, prev, it = self.d_term, self.prev_rates, self.i_term
-        e = (pc - pm, qc - qm, rc - rm)
-        meas = (pm, qm, rm)
-        out = []
-        for k in range(3):
-            dk = d[k] + beta * ((meas[k] - prev[k]) - d[k])
-            d[k] = dk
-            prev[k] = meas[k]
-            sk = self.saturation[k]
-            frozen = (sk != 0) & ((e[k] > 0) == (sk > 0))
-            ik = it[k] + self._ki_dt[k] * e[k]
-            lim = self._ilim[k]
-            ik = np.where(ik > lim, lim, np.where(ik < -lim, -lim, ik))
-            it[k] = np.where(frozen, it[k], ik)
-            out.append(self._kp[k] * e[k] + self._J[k] * it[k] - self._kd[k] * dk)
-        return out[0], out[1], out[2]
-
-    _CONTACT_TOL = 1e-3   # as QuadrotorSim: Bullet keeps points a little beyond touching
-
-    def _mark_contacts(self, cps, touched: np.ndarray) -> None:
-        """Flag drones touching the ground or their own geometry (pairs from a stale broadphase
-        entry with another phase's geometry are not counted)."""
-        di, gi, ground = self._drone_index, self._geometry_index, self.ground_id
+    def _mark_contacts(self, i: int, substep: int, cps) -> None:
+        """The integrator's contact sink: drone ``i`` touched the ground or its own geometry (a
+        pair from a stale broadphase entry with another phase's geometry is not counted)."""
+        ground, gi = self.ground_id, self._geometry_index
         for c in cps:
-            if c[8] > self._CONTACT_TOL:
-                continue
-            for me, other in ((c[1], c[2]), (c[2], c[1])):
-                i = di.get(me)
-                if i is None:
-                    continue
-                if other == ground or gi.get(other, -1) == self.geometry[i]:
-                    touched[i] = True
+            other = c[2]
+            if other == ground or gi.get(other, -1) == self.geometry[i]:
+                self.in_collision[i] = True
+                return
