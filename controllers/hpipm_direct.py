@@ -19,8 +19,11 @@ does what acados does instead:
   HPIPM's setters take them), so nothing is converted on the hot path.
 
 The shim declares the few HPIPM functions it calls itself (the wheel has no headers); every one is
-part of HPIPM's stable setter/getter API. Path constraints are not supported here (the RTI solver
-keeps the CasADi path for OCPs that have them).
+part of HPIPM's stable setter/getter API. Path constraints (the MPCs' clearance constraint) are
+HPIPM's general constraints ``lg <= C x + D u <= ug``, an infinite side masked out; at stage 0 they
+are shifted by ``C_0 dx_0`` in the feedback like the dynamics. The tangential predictor holds only
+input bounds active: it is skipped when a path constraint is active at its base solution and
+falls back to the full QP when the prediction would reach one.
 """
 from __future__ import annotations
 
@@ -71,6 +74,12 @@ extern void d_ocp_qp_set_ubx(int stage, double *v, void *qp);
 extern void d_ocp_qp_set_idxbu(int stage, int *v, void *qp);
 extern void d_ocp_qp_set_lbu(int stage, double *v, void *qp);
 extern void d_ocp_qp_set_ubu(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_C(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_D(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_lg(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_ug(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_lg_mask(int stage, double *v, void *qp);
+extern void d_ocp_qp_set_ug_mask(int stage, double *v, void *qp);
 extern hsize d_ocp_qp_sol_strsize(void);
 extern hsize d_ocp_qp_sol_memsize(void *dim);
 extern void d_ocp_qp_sol_create(void *dim, void *sol, void *mem);
@@ -96,7 +105,11 @@ extern void d_ocp_qp_ipm_get_status(void *ws, int *v);
 extern void d_ocp_qp_ipm_get_iter(void *ws, int *v);
 
 typedef struct {
-    int N, nx, nu, nbx;
+    int N, nx, nu, nbx, ng;
+    /* general (path) constraints lg <= C x + D u <= ug at stages 0..N-1: stage 0's C and bounds
+       kept for the feedback (x_0 eliminated), all stages' blocks for the predictor's checks */
+    double *C0, *lg0, *ug0, *tmp_lg, *tmp_ug, *lg_mask, *ug_mask;
+    double *Cs, *Ds, *lgs, *ugs;
     void *dim, *qp, *sol, *arg, *ws;
     void *mem[5];
     int *idxbx, *idxbu;
@@ -118,16 +131,18 @@ void vtqp_free(vtqp *h) {
     free(h->A0); free(h->S0); free(h->b0); free(h->r0); free(h->tmp_b); free(h->tmp_r);
     free(h->K); free(h->P); free(h->G); free(h->Huu); free(h->Hux); free(h->dx); free(h->dxn);
     free(h->du); free(h->dw_base); free(h->dx0_base); free(h->active); free(h->lam);
+    free(h->C0); free(h->lg0); free(h->ug0); free(h->tmp_lg); free(h->tmp_ug); free(h->lg_mask); free(h->ug_mask);
     free(h);
 }
 
 /* Stage 0 has no state (x_0 eliminated), stages 1..N have nx states; nu inputs bounded at every
-   stage 0..N-1; nbx states bounded at stages 1..N (indices idxbx). mu0 <= 0 keeps the preset's. */
+   stage 0..N-1; nbx states bounded at stages 1..N (indices idxbx); ng general constraints at
+   stages 0..N-1, a side whose mask entry is 0 left open. mu0 <= 0 keeps the preset's. */
 vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, int iter_max,
-                  double tol, double mu0) {
+                  double tol, double mu0, int ng, const double *lg_mask, const double *ug_mask) {
     int k;
     vtqp *h = (vtqp *) zalloc(sizeof(vtqp));
-    h->N = N; h->nx = nx; h->nu = nu; h->nbx = nbx;
+    h->N = N; h->nx = nx; h->nu = nu; h->nbx = nbx; h->ng = ng;
     h->dim = zalloc(d_ocp_qp_dim_strsize());
     h->mem[0] = zalloc(d_ocp_qp_dim_memsize(N));
     d_ocp_qp_dim_create(N, h->dim, h->mem[0]);
@@ -136,7 +151,7 @@ vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, in
         d_ocp_qp_dim_set_nu(k, k == N ? 0 : nu, h->dim);
         d_ocp_qp_dim_set_nbx(k, k == 0 ? 0 : nbx, h->dim);
         d_ocp_qp_dim_set_nbu(k, k == N ? 0 : nu, h->dim);
-        d_ocp_qp_dim_set_ng(k, 0, h->dim);
+        d_ocp_qp_dim_set_ng(k, k == N ? 0 : ng, h->dim);
         d_ocp_qp_dim_set_ns(k, 0, h->dim);
     }
     h->qp = zalloc(d_ocp_qp_strsize());
@@ -164,6 +179,18 @@ vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, in
     for (k = 0; k < nu; ++k) h->idxbu[k] = k;
     for (k = 0; k < N; ++k) d_ocp_qp_set_idxbu(k, h->idxbu, h->qp);
     for (k = 1; k <= N; ++k) if (nbx) d_ocp_qp_set_idxbx(k, h->idxbx, h->qp);
+    h->lg_mask = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
+    h->ug_mask = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
+    for (k = 0; k < ng; ++k) { h->lg_mask[k] = lg_mask[k]; h->ug_mask[k] = ug_mask[k]; }
+    if (ng) for (k = 0; k < N; ++k) {
+        d_ocp_qp_set_lg_mask(k, h->lg_mask, h->qp);
+        d_ocp_qp_set_ug_mask(k, h->ug_mask, h->qp);
+    }
+    h->C0 = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1) * nx);
+    h->lg0 = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
+    h->ug0 = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
+    h->tmp_lg = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
+    h->tmp_ug = (double *) zalloc(sizeof(double) * (ng > 0 ? ng : 1));
     h->A0 = (double *) zalloc(sizeof(double) * nx * nx);
     h->S0 = (double *) zalloc(sizeof(double) * nu * nx);
     h->b0 = (double *) zalloc(sizeof(double) * nx);
@@ -188,10 +215,26 @@ vtqp *vtqp_create(int N, int nx, int nu, int nbx, const int *idxbx, int mode, in
 /* Preparation: load the linearisation (stage blocks column-major, stage k at k * block size).
    Qs: nx x nx for stages 0..N; Ss: nu x nx, Rs: nu x nu, rs: nu, As: nx x nx, Bs: nx x nu,
    bs: nx for stages 0..N-1; qs: nx for 0..N; lbu/ubu: nu per stage 0..N-1; lbx/ubx: nbx per
-   stage 1..N. Stage 0's state blocks are kept for the feedback. */
+   stage 1..N; Cs: ng x nx, Ds: ng x nu, lgs/ugs: ng for stages 0..N-1 (ignored when ng = 0).
+   Stage 0's state blocks are kept for the feedback. */
 void vtqp_load(vtqp *h, double *Qs, double *Ss, double *Rs, double *qs, double *rs, double *As,
-               double *Bs, double *bs, double *lbu, double *ubu, double *lbx, double *ubx) {
-    int k, N = h->N, nx = h->nx, nu = h->nu, nbx = h->nbx;
+               double *Bs, double *bs, double *lbu, double *ubu, double *lbx, double *ubx,
+               double *Cs, double *Ds, double *lgs, double *ugs) {
+    int k, N = h->N, nx = h->nx, nu = h->nu, nbx = h->nbx, ng = h->ng;
+    if (ng) {
+        for (k = 0; k < N; ++k) {
+            d_ocp_qp_set_D(k, Ds + k * ng * nu, h->qp);
+            if (k > 0) {
+                d_ocp_qp_set_C(k, Cs + k * ng * nx, h->qp);
+                d_ocp_qp_set_lg(k, lgs + k * ng, h->qp);
+                d_ocp_qp_set_ug(k, ugs + k * ng, h->qp);
+            }
+        }
+        memcpy(h->C0, Cs, sizeof(double) * ng * nx);
+        memcpy(h->lg0, lgs, sizeof(double) * ng);
+        memcpy(h->ug0, ugs, sizeof(double) * ng);
+        h->Cs = Cs; h->Ds = Ds; h->lgs = lgs; h->ugs = ugs;
+    }
     for (k = 0; k < N; ++k) {
         d_ocp_qp_set_R(k, Rs + k * nu * nu, h->qp);
         d_ocp_qp_set_lbu(k, lbu + k * nu, h->qp);
@@ -251,6 +294,21 @@ static int gain_rows(int nu, int nx, const int *act, double *Huu, const double *
     return 0;
 }
 
+/* Whether some open-side-masked general constraint of the step dw (= [dx0 du0 dx1 ...]) is within
+   tol of its bound (or beyond it): C_k dx_k + D_k du_k against [lg_k, ug_k]. */
+static int general_violated(const vtqp *h, const double *dw, double tol) {
+    int i, j, k, N = h->N, nx = h->nx, nu = h->nu, ng = h->ng, nz = nx + nu;
+    for (k = 0; k < N; ++k) for (i = 0; i < ng; ++i) {
+        double g = 0;
+        const double *C = h->Cs + k * ng * nx, *D = h->Ds + k * ng * nu;
+        for (j = 0; j < nx; ++j) g += C[i + j * ng] * dw[k * nz + j];
+        for (j = 0; j < nu; ++j) g += D[i + j * ng] * dw[k * nz + nx + j];
+        if (h->lg_mask[i] != 0.0 && g - h->lgs[k * ng + i] < tol) return 1;
+        if (h->ug_mask[i] != 0.0 && h->ugs[k * ng + i] - g < tol) return 1;
+    }
+    return 0;
+}
+
 /* Tangential predictor, preparation side: after a solve for dx0 (the base), hold the active
    input bounds and compute the gains of the solution w.r.t. dx0 by a Riccati recursion on the
    free inputs: u_k = K_k dx_k; keep each stage's Huu, Hux (the change of the inputs' gradient,
@@ -268,6 +326,7 @@ int vtqp_sens(vtqp *h, const double *dx0, const double *dw, double act_tol, int 
         d_ocp_qp_sol_get_lam_lbu(k, h->sol, h->lam + 2 * k * nu);
         d_ocp_qp_sol_get_lam_ubu(k, h->sol, h->lam + 2 * k * nu + nu);
     }
+    if (h->ng && general_violated(h, dw, act_tol)) return -1;   /* only inactive path constraints */
     for (k = 0; k < N; ++k) for (i = 0; i < nu; ++i) {
         double u = dw[k * nz + nx + i], lo = h->lbu[k * nu + i], hi = h->ubu[k * nu + i];
         double scale = act_tol * (hi - lo > 1.0 ? hi - lo : 1.0);
@@ -335,6 +394,7 @@ int vtqp_predict(vtqp *h, const double *dx0, double *dw) {
         }
         for (i = 0; i < nx; ++i) dx[i] = dxn[i];
     }
+    if (h->ng && general_violated(h, dw, 0.0)) return 1;   /* a path constraint would become active */
     return 0;
 }
 
@@ -351,6 +411,15 @@ void vtqp_feedback(vtqp *h, const double *dx0, double *dw, int *stats) {
     }
     d_ocp_qp_set_b(0, h->tmp_b, h->qp);
     d_ocp_qp_set_r(0, h->tmp_r, h->qp);
+    if (h->ng) {   /* stage 0: lg - C_0 dx0 <= D_0 du0 <= ug - C_0 dx0 */
+        for (i = 0; i < h->ng; ++i) { h->tmp_lg[i] = h->lg0[i]; h->tmp_ug[i] = h->ug0[i]; }
+        for (j = 0; j < nx; ++j) for (i = 0; i < h->ng; ++i) {
+            h->tmp_lg[i] -= h->C0[i + j * h->ng] * dx0[j];
+            h->tmp_ug[i] -= h->C0[i + j * h->ng] * dx0[j];
+        }
+        d_ocp_qp_set_lg(0, h->tmp_lg, h->qp);
+        d_ocp_qp_set_ug(0, h->tmp_ug, h->qp);
+    }
     d_ocp_qp_ipm_solve(h->qp, h->sol, h->arg, h->ws);
     d_ocp_qp_ipm_get_status(h->ws, &stats[0]);
     d_ocp_qp_ipm_get_iter(h->ws, &stats[1]);
@@ -413,14 +482,23 @@ class HpipmQP:
 
     def __init__(self, N: int, nx: int, nu: int, idxbx: np.ndarray, mode: str = "speed_abs",
                  iter_max: int = 50, tol: float = 1e-6, mu0: float | None = None,
-                 cache_dir: str | os.PathLike | None = None) -> None:
+                 cache_dir: str | os.PathLike | None = None, g_lower_open: np.ndarray | None = None,
+                 g_upper_open: np.ndarray | None = None) -> None:
         lib = self._load_lib(cache_dir)
         self._lib = lib
         self.N, self.nx, self.nu = int(N), int(nx), int(nu)
         self.idxbx = np.ascontiguousarray(idxbx, dtype=np.int32)
+        # General (path) constraints: one entry per row, True where that side is open (infinite).
+        lo_open = np.zeros(0, bool) if g_lower_open is None else np.asarray(g_lower_open, bool)
+        hi_open = np.zeros(len(lo_open), bool) if g_upper_open is None else np.asarray(g_upper_open, bool)
+        if lo_open.shape != hi_open.shape:
+            raise ValueError("g_lower_open and g_upper_open must have one entry per general constraint")
+        self.ng = len(lo_open)
+        self._g_masks = (np.ascontiguousarray(~lo_open, dtype=np.float64), np.ascontiguousarray(~hi_open, dtype=np.float64))
         self._handle = lib.vtqp_create(self.N, self.nx, self.nu, int(self.idxbx.size),
                                        self.idxbx.ctypes.data, HPIPM_MODES[mode], int(iter_max), float(tol),
-                                       -1.0 if mu0 is None else float(mu0))
+                                       -1.0 if mu0 is None else float(mu0), self.ng,
+                                       self._g_masks[0].ctypes.data, self._g_masks[1].ctypes.data)
         if not self._handle:
             raise RuntimeError("HPIPM shim: allocation failed")
         self._stats = np.zeros(2, dtype=np.int32)
@@ -436,9 +514,10 @@ class HpipmQP:
             vp, ip, dp = ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p
             lib.vtqp_create.restype = vp
             lib.vtqp_create.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int, ctypes.c_int, ip,
-                                        ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double]
+                                        ctypes.c_int, ctypes.c_int, ctypes.c_double, ctypes.c_double,
+                                        ctypes.c_int, dp, dp]
             lib.vtqp_load.restype = None
-            lib.vtqp_load.argtypes = [vp] + [dp] * 12
+            lib.vtqp_load.argtypes = [vp] + [dp] * 16
             lib.vtqp_feedback.restype = None
             lib.vtqp_feedback.argtypes = [vp, dp, dp, ip]
             lib.vtqp_sens.restype = ctypes.c_int
@@ -452,7 +531,7 @@ class HpipmQP:
 
     def load(self, *ptrs: int) -> None:
         """Load the stage blocks (pointers to float64 arrays, in the shim's ``vtqp_load`` order:
-        Qs, Ss, Rs, qs, rs, As, Bs, bs, lbu, ubu, lbx, ubx)."""
+        Qs, Ss, Rs, qs, rs, As, Bs, bs, lbu, ubu, lbx, ubx, Cs, Ds, lgs, ugs)."""
         self._lib.vtqp_load(self._handle, *ptrs)
 
     def feedback(self, dx0_ptr: int, dw_ptr: int) -> tuple[int, int]:

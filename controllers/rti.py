@@ -404,22 +404,31 @@ def build_stage_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Fu
     terminal Hessian last, S (nu, nx N), R (nu, nu N), q (nx, N+1), r (nu, N), dynamics
     x_{k+1} = A x_k + B u_k + b with A (nx, nx N), B (nx, nu N) and the defect b (nx, N). The same
     Gauss-Newton data as :func:`build_qp_data_function`, laid out as HPIPM's setters take them.
-    Path constraints are not supported."""
-    if ocp.nh:
-        raise ValueError(f"the stage-wise QP data do not support path constraints (OCP {ocp.name!r} has {ocp.nh})")
-    N, nx = ocp.horizon, ocp.nx
+    With path constraints, four more outputs: their Jacobians C (nh, nx N) and D (nh, nu N) and the
+    step's bounds lg = h_lower - h, ug = h_upper - h (nh, N; infinite sides at +-BOUND_INF)."""
+    N, nx, nh = ocp.horizon, ocp.nx, ocp.nh
     st = _gauss_newton_stage(ocp, regularization)
     H, g, AB = st["H"], st["g"], st["AB"]
-    stage = ca.Function(f"{ocp.name}_sstage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]],
-                        [H[:nx, :nx], H[nx:, :nx], H[nx:, nx:], g[:nx], g[nx:], AB[:, :nx], AB[:, nx:],
-                         -st["neg_defect"], st["cost"]])
+    outs = [H[:nx, :nx], H[nx:, :nx], H[nx:, nx:], g[:nx], g[nx:], AB[:, :nx], AB[:, nx:], -st["neg_defect"],
+            st["cost"]]
+    if nh:
+        hval = ocp.path_constraint(st["x"], st["u"], st["p"])
+        h_lo = ca.DM(np.clip(ocp.h_lower, -BOUND_INF, BOUND_INF))
+        h_hi = ca.DM(np.clip(ocp.h_upper, -BOUND_INF, BOUND_INF))
+        outs += [ca.jacobian(hval, st["x"]), ca.jacobian(hval, st["u"]), h_lo - hval, h_hi - hval]
+    stage = ca.Function(f"{ocp.name}_sstage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]], outs)
     terminal = _gauss_newton_terminal(ocp, regularization)
     m = _horizon_symbols(ocp)
-    Q, S, R, q, rr, A, B, b, costs = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
+    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
+    Q, S, R, q, rr, A, B, b, costs = res[:9]
     QN, qN, costN = terminal(m["wN"], m["pN"], m["WN"])
     outs = [ca.horzcat(Q, QN), S, R, ca.horzcat(q, qN), rr, A, B, b, ca.sum2(costs) + costN]
+    names = ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"]
+    if nh:
+        outs += list(res[9:13])
+        names += ["C", "D", "lg", "ug"]
     return ca.Function(f"{ocp.name}_sqpdata", [m["w"], m["p"], m["W"], m["WN"]], [ca.densify(o) for o in outs],
-                       ["w", "p", "W", "WN"], ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"])
+                       ["w", "p", "W", "WN"], names)
 
 
 def _minus_identity_pattern(ocp: OCP) -> ca.DM:
@@ -536,15 +545,13 @@ class RTISolver:
         """The direct HPIPM path (:mod:`controllers.hpipm_direct`); warns and keeps CasADi's
         plugin where it cannot be built."""
         from .hpipm_direct import HpipmQP
-        if ocp.nh:
-            warnings.warn(f"qp_solver='hpipm' does not support path constraints (OCP {ocp.name!r}); "
-                          "using CasADi's HPIPM plugin", RuntimeWarning, stacklevel=3)
-            return
         finite = np.flatnonzero(np.isfinite(ocp.x_lower) | np.isfinite(ocp.x_upper))
         try:
             qp = HpipmQP(ocp.horizon, ocp.nx, ocp.nu, finite, mode=self.options.qp_mode,
                          iter_max=self.options.qp_iter_max, tol=self.options.qp_tol,
-                         mu0=self.options.qp_mu0, cache_dir=self.options.cache_dir)
+                         mu0=self.options.qp_mu0, cache_dir=self.options.cache_dir,
+                         g_lower_open=~np.isfinite(ocp.h_lower) if ocp.nh else None,
+                         g_upper_open=~np.isfinite(ocp.h_upper) if ocp.nh else None)
         except RuntimeError as exc:
             warnings.warn(f"qp_solver='hpipm' unavailable ({exc}); using CasADi's HPIPM plugin",
                           RuntimeWarning, stacklevel=3)
@@ -569,7 +576,8 @@ class RTISolver:
             # a one-sided bound keeps +-BOUND_INF on its open side (only bounded states are passed)
             "x_lo": np.tile(np.clip(ocp.x_lower[finite], -BOUND_INF, BOUND_INF), (N, 1)),
             "x_hi": np.tile(np.clip(ocp.x_upper[finite], -BOUND_INF, BOUND_INF), (N, 1)),
-            "ptrs": [a.ctypes.data for a in outs[:8]] + [a.ctypes.data for a in bounds],
+            "ptrs": [a.ctypes.data for a in outs[:8]] + [a.ctypes.data for a in bounds]
+                    + ([a.ctypes.data for a in outs[9:13]] if ocp.nh else [0, 0, 0, 0]),
             "dx0_ptr": self._dx0.ctypes.data, "dw_ptr": self._dw.ctypes.data,
         }
 

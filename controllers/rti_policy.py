@@ -376,7 +376,10 @@ class MPCConfig:
     rk4_steps: int = 1
     control_dt: float | None = None
     scaling: ActionScaling | None = None
-    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs"))
+    # The fastest verified QP path: HPIPM called directly (clearance constraint included) from
+    # acados' initial barrier parameter; RTIOptions(qp_solver="casadi") keeps CasADi's plugin.
+    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs", qp_solver="hpipm",
+                                                                  qp_mu0=1.0))
     backend: str = "rti"
     prepare_ahead: bool = False
     clearance: bool = True

@@ -139,17 +139,21 @@ def _fly(policy, offset, seconds: float) -> tuple[float, dict]:
         env.close()
 
 
-def _vtnmpc_plus(clearance: bool):
+def _vtnmpc_plus(clearance: bool, **options):
     def make(env):
         return VTNMPCPolicy(params=env.params, d_ref=env.config.standoff, control_dt=env.dt,
-                            obstacles=env.mission, clearance=clearance, **VTNMPC_PLUS)
+                            obstacles=env.mission, clearance=clearance, **{**VTNMPC_PLUS, **options})
     return make
 
 
 @pytest.mark.slow
 def test_vtnmpc_plus_started_30_m_above_keeps_d_min_where_it_passed_close_without():
     """The issue's case: 30 m above the first stand-off pose, VT-NMPC+ dives past the blade."""
-    without, _ = _fly(_vtnmpc_plus(False), (0.0, 0.0, 30.0), 7.0)
+    # The issue's flight without the constraint was on CasADi's plugin from its preset barrier
+    # parameter (the default direct path from mu0 = 1 happens to pass 4.7 m from the blade).
+    from controllers.rti import RTIOptions
+    without, _ = _fly(_vtnmpc_plus(False, solver=RTIOptions(qp_mode="speed_abs", qp_solver="casadi")),
+                      (0.0, 0.0, 30.0), 7.0)
     with_, info = _fly(_vtnmpc_plus(True), (0.0, 0.0, 30.0), 7.0)
     assert without < 2.0                                   # the unconstrained controller passes close
     assert with_ >= 3.0                                    # d_min at the paper's 7 m stand-off
@@ -174,11 +178,33 @@ def test_the_baselines_keep_d_min_from_30_m_above(cls):
     assert info["termination"] is None
 
 
-def test_the_direct_hpipm_path_warns_and_keeps_the_constraint_on_the_plugin():
-    """The direct HPIPM path has no path constraints: with the clearance the solver says so and
-    uses CasADi's HPIPM plugin, so the constraint is never silently dropped."""
+def test_the_direct_hpipm_path_carries_the_clearance_constraint():
+    """The default QP path (HPIPM called directly) keeps the clearance constraint as HPIPM general
+    constraints: pushed towards a wall, the plan stops d_min in front of it, the same plan as
+    CasADi's HPIPM plugin to QP tolerance, and no warning says it fell back."""
+    import warnings
     from controllers.rti import RTIOptions
-    wall = TurbineProximity([_box((0.0, 0.0, 30.0), (1.0, 1.0, 1.0))])
-    with pytest.warns(RuntimeWarning, match="does not support path constraints"):
-        pol = VTNMPCPolicy(obstacles=wall, solver=RTIOptions(qp_mode="speed_abs", qp_solver="hpipm"))
-    assert pol.solver.qp_solver == "casadi" and pol.ocp.nh == 1
+    wall_tris = _box((0.0, 0.0, 30.0), (0.5, 20.0, 20.0))
+    x = np.zeros(10)
+    x[0], x[2], x[9] = 6.0, 30.0, 1.0
+    par = np.array([-6.0, 0.0, 30.0, 0.0, 0.0, 0.0, -1.0, 0.0])
+    first = {}
+    for qs in ("hpipm", "casadi"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            pol = NMPCPolicy(obstacles=TurbineProximity([wall_tris]), horizon=30, dt=0.05,
+                             solver=RTIOptions(qp_mode="robust", qp_tol=1e-6, qp_iter_max=500, qp_solver=qs))
+        assert pol.solver.qp_solver == qs and pol.ocp.nh == 1
+        pol.command_for(x, par)
+        assert pol.last_stats.status == "SUCCESS"
+        first[qs] = pol.predicted_states.copy()      # the same first QP on both paths
+    np.testing.assert_allclose(first["hpipm"], first["casadi"], atol=1e-6)
+    # The default configuration (direct path, speed mode, mu0 = 1) keeps d_min, the constraint active.
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        pol = NMPCPolicy(obstacles=TurbineProximity([wall_tris]), horizon=30, dt=0.05)
+    for _ in range(40):
+        pol.command_for(x, par)
+    assert pol.solver.qp_solver == "hpipm" and pol.last_stats.status == "SUCCESS"
+    plan = pol.predicted_states[:, 0]
+    assert 0.5 + pol.config.d_min - 1e-3 <= plan.min() < 0.5 + pol.config.d_min + 0.5

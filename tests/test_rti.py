@@ -346,7 +346,8 @@ def test_direct_hpipm_sqp_matches_ipopt_and_the_plugin(cache_dir):
 
 def test_direct_hpipm_with_active_state_bounds_and_its_fallback(cache_dir):
     """State bounds go to HPIPM as bounds of the states that have them (here the rate, active in
-    the solution); an OCP with path constraints keeps CasADi's plugin, with a warning."""
+    the solution), path constraints as its general constraints (active too): both converge to
+    IPOPT's solution."""
     full = pendulum_ocp(horizon=40)
     ocp = dataclasses.replace(full, path_constraint=None, h_lower=None, h_upper=None)
     x0, p = np.array([0.0, 0.0]), np.array([3.0])
@@ -360,8 +361,16 @@ def test_direct_hpipm_with_active_state_bounds_and_its_fallback(cache_dir):
     xs, _ = ocp.unpack(rti.iterate)
     assert np.isclose(xs[:, 1].max(), 0.6, atol=1e-6)
     np.testing.assert_allclose(rti.iterate, ipopt.iterate, atol=2e-6)
-    with pytest.warns(RuntimeWarning, match="path constraints"):
-        assert RTISolver(full, PEND_W, PEND_WN, opts).qp_solver == "casadi"
+    # With the path constraint (active in the solution), through HPIPM's general constraints.
+    con = RTISolver(full, PEND_W, PEND_WN, opts)
+    assert con.qp_solver == "hpipm"
+    con.solve(x0, p, max_iter=200, tol=1e-8)
+    assert con.last_stats.status == "SUCCESS"
+    ref = IpoptOCPSolver(full, PEND_W, PEND_WN, tol=1e-12)
+    ref.solve(x0, p)
+    xs, us = full.unpack(con.iterate)
+    assert np.isclose((xs[:-1, 0] + 0.2 * us[:, 0]).max(), 1.0, atol=1e-6)
+    np.testing.assert_allclose(con.iterate, ref.iterate, atol=1e-6)
     with pytest.raises(ValueError, match="qp_solver"):
         RTIOptions(qp_solver="qpoases")
 
