@@ -35,6 +35,7 @@ BENCHES: dict[str, tuple[str, str]] = {
     "vecenv": ("wt_inspect_env.commands.bench_vecenv", "vector env aggregate steps per second vs the single env"),
     "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
+    "mission": ("wt_inspect.commands.bench_mission", "one whole mission's wall time: simulator, env, policy, harness"),
     "train": ("agents.bench", "training throughput: vector env vs subprocess envs"),
     "leak": ("wt_inspect_env.commands.bench_leak", "memory over repeated gym.make/reset/close cycles (RSS slope)"),
 }

@@ -32,7 +32,7 @@ measured, not assumed. The names resolved through the registry (``rti_compiled``
 :mod:`controllers.rti_policy`); ``rti_no_clearance``, ``vtnmpc_plus_no_clearance`` and
 ``nmpc_no_clearance`` are the same without it, so its cost per step is the difference in one run.
 The ``rti_*`` solver variants built here (``rti_ahead``, ``rti_hpipm``, ...) compare QP paths on
-the VT-NMPC OCP without the constraint (the direct HPIPM path has no path constraints). The compile time of the QP-data library is measured separately, into a
+the VT-NMPC OCP without the constraint. The compile time of the QP-data library is measured separately, into a
 fresh temporary cache so that it is a real compile.
 """
 from __future__ import annotations
