@@ -72,3 +72,11 @@ def test_mixer_maps_rotor_thrusts_to_wrench():
     # Equal thrusts: pure collective, no torque
     np.testing.assert_allclose(A @ np.full(4, 5.0), [20, 0, 0, 0], atol=1e-12)
     assert np.linalg.matrix_rank(A) == 4
+
+
+def test_one_quaternion_rotation_is_the_batched_one_bit_for_bit():
+    """quat_to_rotmat_np's single-quaternion fast path (Python floats) gives the batched result."""
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(500, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    np.testing.assert_array_equal(np.array([quat_to_rotmat_np(x) for x in q]), quat_to_rotmat_np(q))

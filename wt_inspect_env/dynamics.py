@@ -58,6 +58,12 @@ def quat_to_rotmat(q):
 def quat_to_rotmat_np(q: np.ndarray) -> np.ndarray:
     """NumPy version of :func:`quat_to_rotmat` (accepts (4,) or (..., 4))."""
     q = np.asarray(q, dtype=float)
+    if q.shape == (4,):   # one quaternion (every control step): the same arithmetic on Python floats
+        qx, qy, qz, qw = q.tolist()
+        xx, yy, zz = qx * qx, qy * qy, qz * qz      # as NumPy squares arrays (x * x)
+        return np.array([[1 - 2 * (yy + zz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)],
+                         [2 * (qx * qy + qw * qz), 1 - 2 * (xx + zz), 2 * (qy * qz - qw * qx)],
+                         [2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (xx + yy)]])
     qx, qy, qz, qw = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     R = np.empty(q.shape[:-1] + (3, 3))
     R[..., 0, 0] = 1 - 2 * (qy**2 + qz**2)
