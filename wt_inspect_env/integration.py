@@ -39,6 +39,7 @@ CONTACT_TOL = 1e-3       # Bullet keeps points a little beyond touching; count o
 _MARGIN = 0.1            # [m] beyond the box's sphere and the reach: Bullet's collision margins
 _CHECK_AHEAD = 4.0       # [m] a clearance measurement looks this far beyond what the step needs
 _FAR = 1.0e30
+_PARK_Z = -1.0e4         # [m] where the bodies of free-flying drones wait
 
 ContactSink = Callable[[int, int, Sequence[Any]], None]   # (drone, sub-step, contact points)
 
@@ -161,6 +162,9 @@ class DroneIntegrator:
         neither collide nor cost the solver while PyBullet steps the near ones."""
         for i in idx.tolist():
             p.setCollisionFilterGroupMask(self.bodies[i], -1, self._group, 0, physicsClientId=self._cid)
+            # ... and wait far from the scene, so they are not in the way of the camera rays' search
+            p.resetBasePositionAndOrientation(self.bodies[i], (10.0 * i, 0.0, _PARK_Z), (0.0, 0.0, 0.0, 1.0),
+                                              physicsClientId=self._cid)
         self._in_bullet[idx] = False
 
     def _step_in_bullet(self, idx: np.ndarray, sink: ContactSink | None) -> None:

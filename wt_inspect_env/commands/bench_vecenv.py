@@ -102,8 +102,28 @@ def _summary(rates: list[float], dt: float, n: int, total: int, resets: int,
             "memory_per_drone_mb": (rss1 - rss0) / n, "rss_growth_mb": rss2 - rss1}
 
 
+def crazyflow_rates(python: str, counts: list[int], steps: int, repeats: int) -> dict[str, float]:
+    """Aggregate drone-steps/s of crazyflow stepped like an env, measured by ``python`` (the
+    interpreter of crazyflow's own virtual environment) running :mod:`.peer_crazyflow`."""
+    import subprocess
+    from pathlib import Path
+    script = Path(__file__).with_name("peer_crazyflow.py")
+    try:
+        proc = subprocess.run([python, str(script), ",".join(map(str, counts)), str(steps), str(repeats)],
+                              capture_output=True, text=True, timeout=3600)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        raise ValueError(f"--crazyflow-python {python!r} could not run: {exc}") from None
+    if proc.returncode != 0:
+        tail = (proc.stderr.strip().splitlines() or ["no output"])[-1]
+        raise ValueError(f"--crazyflow-python {python!r} failed: {tail[:200]}")
+    try:
+        return {k: float(v) for k, v in json.loads(proc.stdout.strip().splitlines()[-1]).items()}
+    except (ValueError, IndexError):
+        raise ValueError(f"--crazyflow-python {python!r} printed no result") from None
+
+
 def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats: int = 3,
-              options: dict | None = None) -> dict:
+              options: dict | None = None, crazyflow_python: str | None = None) -> dict:
     """Run the benchmark; returns ``{"1": {...}, "8": {...}, ...}`` plus a ``"reference"`` entry."""
     import wt_inspect_env  # noqa: F401 - registers the ids
 
@@ -123,6 +143,12 @@ def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats
         entry["ratio_to_single"] = entry["steps_per_s"] / single["steps_per_s"]
         entry["ratio_to_raw_pybullet"] = entry["steps_per_s"] / raw
     out["reference"] = {"raw_pybullet_steps_per_s": raw, "task": task, "options": options}
+    if crazyflow_python:
+        peer = crazyflow_rates(crazyflow_python, sorted({1, *counts}), steps, repeats)
+        for key, rate in peer.items():
+            if key in out:
+                out[key]["crazyflow_steps_per_s"] = rate
+                out[key]["ratio_to_crazyflow"] = out[key]["steps_per_s"] / rate
     return out
 
 
@@ -134,13 +160,16 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     ap.add_argument("--repeats", type=int, default=3, help="timed blocks per N (default 3)")
     ap.add_argument("--env", type=json_object("--env"), default=None,
                     help="environment options as a JSON object (as gym.make keywords)")
+    ap.add_argument("--crazyflow-python", default=None, metavar="PATH",
+                    help="the Python of a virtual environment with crazyflow: time it stepped like an env, "
+                         "same N, side by side")
     ap.add_argument("--json", action="store_true", help="print one JSON object keyed by N")
     args = ap.parse_args(argv)
     try:
         counts = _parse_counts(args.num_envs)
         if args.steps < 1 or args.repeats < 1:
             raise ValueError(f"--steps and --repeats must be positive, got {args.steps}, {args.repeats}")
-        out = run_bench(counts, args.task, args.steps, args.repeats, args.env or {})
+        out = run_bench(counts, args.task, args.steps, args.repeats, args.env or {}, args.crazyflow_python)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -150,12 +179,18 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     raw = out["reference"]["raw_pybullet_steps_per_s"]
     print(f"vector env, task {args.task}: aggregate env steps/s (median of {args.repeats} x {args.steps}); "
           f"raw PyBullet reference {raw:,.0f} steps/s")
-    print(f"{'N':>5} {'steps/s':>10} {'x real time':>11} {'x single':>9} {'x raw':>7} {'MB/drone':>9} {'RSS growth':>11}")
+    peer = args.crazyflow_python is not None
+    print(f"{'N':>5} {'steps/s':>10} {'x real time':>11} {'x single':>9} {'x raw':>7} {'MB/drone':>9} {'RSS growth':>11}"
+          + (f" {'crazyflow':>10} {'x cf':>6}" if peer else ""))
     for key, e in out.items():
         if key == "reference":
             continue
         label = "1*" if key == "1" else key
         print(f"{label:>5} {e['steps_per_s']:>10,.0f} {e['realtime_factor']:>11.1f} {e['ratio_to_single']:>9.2f} "
-              f"{e['ratio_to_raw_pybullet']:>7.3f} {e['memory_per_drone_mb']:>9.2f} {e['rss_growth_mb']:>+10.1f}M")
-    print("(* N = 1 is the single WindTurbineInspectionEnv)")
+              f"{e['ratio_to_raw_pybullet']:>7.3f} {e['memory_per_drone_mb']:>9.2f} {e['rss_growth_mb']:>+10.1f}M"
+              + (f" {e.get('crazyflow_steps_per_s', float('nan')):>10,.0f} {e.get('ratio_to_crazyflow', float('nan')):>6.2f}"
+                 if peer else ""))
+    print("(* N = 1 is the single WindTurbineInspectionEnv"
+          + ("; crazyflow: Sim(n_worlds=N), first-principles dynamics, body-rate control at 400 Hz, stepped every 10 ms"
+             if peer else "") + ")")
     return 0
