@@ -8,7 +8,7 @@ scenario only; :mod:`controllers.nmpc` and :mod:`controllers.pampc` are the fixe
   with their weights W_qz = W_qw = 30. The measured quaternion is continuous (the base aligns it with
   the previous step's), so each time the facing yaw crosses +-180 deg the reference jumps by 360 deg,
   q_ref changes sign while the drone's q does not, and the least-squares cost sees an error of
-  |q - (-q)| = 2 in (q_z, q_w) for an attitude that is exactly right (authors-code-notes.md). The
+  |q - (-q)| = 2 in (q_z, q_w) for an attitude that is exactly right (docs/controllers.md). The
   drone then turns a full circle back, or hangs between - the suspected cause of the paper's NMPC
   coverage of 91.6 %.
 * :class:`AuthorsPAMPCPolicy` (``pampc-authors``) - the PAMPC with the authors' camera axis: the

@@ -24,7 +24,8 @@ is guarded (:class:`LibraryCache`, also used by the HPIPM shim):
   temporary directories left by a killed compile are removed the next time the cache is used.
 
 Only pure numerical functions go through this path; the HPIPM call itself is never generated
-(see ../shared/reference/anchors.md: embedding it has crashed).
+(calling HPIPM from generated code has crashed; the QP is solved through CasADi's plugin or
+:mod:`controllers.hpipm_direct`).
 """
 from __future__ import annotations
 

@@ -34,7 +34,8 @@ inputs (4)         [p, q, r, T] - [0, 0, 0, m g]                      hover thru
 
 Yaw. The authors tracked a quaternion built from a precomputed yaw; their yaw references jumped by
 multiples of 360 deg, which flips the quaternion's sign and turns a least-squares quaternion cost
-into a large spurious error (authors-code-notes.md). Here the yaw reference enters only through
+into a large spurious error (docs/controllers.md, "The paper, the authors' code and this
+implementation"). Here the yaw reference enters only through
 (cos psi_ref, sin psi_ref) and the attitude only through the rotation matrix R(q), so a 360 deg wrap
 or a quaternion sign flip changes nothing. For a level drone with yaw error e the residual's squared
 norm is 2 - 2 cos e ~ e^2, against 2 - 2 cos(e/2) ~ e^2 / 4 for the quaternion components

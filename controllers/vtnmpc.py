@@ -1,7 +1,8 @@
 """The paper's visual-tracking NMPC (VT-NMPC) on the generic RTI core.
 
-Residuals (section "Proposed VT-NMPC Formulation" of the paper, signs and definitions as fixed in
-``authors-code-notes.md``), with a = p - x_drone, a_xy its horizontal part, n = (n_x, n_y, 0) the
+Residuals (section "Proposed VT-NMPC Formulation" of the paper, with the signs and definitions the
+authors' code uses where the printed formulas are ambiguous; docs/controllers.md, "The paper, the
+authors' code and this implementation"), with a = p - x_drone, a_xy its horizontal part, n = (n_x, n_y, 0) the
 surface's outward unit normal and every norm guarded as sqrt(s^2 + eps) so that Gauss-Newton data
 never turn NaN:
 
@@ -18,7 +19,7 @@ terminal       x*_N                                             as x*       1.5 
 =============  ==============================================  ==========  =====================
 
 v_pt_B is the inspection point's velocity expressed in the body frame of the measured attitude
-(once per solve, as in the paper). The heading is normalised by ||a_xy|| (the notes; the paper's
+(once per solve, as in the paper). The heading is normalised by ||a_xy|| (as the authors' code does; the paper's
 formula omits it but its reference 1 needs it) and by default uses the full attitude, as printed,
 rather than the authors' yaw-only approximation (``heading_model="camera"`` selects the latter,
 which is the heading of the environment's gimbal camera). The thrust reference is the hover thrust m g of the one parameter set

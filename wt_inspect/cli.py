@@ -27,6 +27,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "tune": ("wt_inspect.commands.tune", "tune an MPC's weights with Optuna; writes a weights file (NAME:weights=FILE)"),
     "campaign": ("wt_inspect.commands.campaign", "robustness campaign: many randomised episodes, crashes/fallbacks/memory"),
     "rescore": ("wt_inspect.commands.rescore", "recorded runs' coverage under another camera / coverage rule, no flight"),
+    "reproduce": ("wt_inspect.reproduce", "rerun every committed result from results/reproduce.toml; --check: no flight"),
+    "study": ("wt_inspect.studies", "the analyses behind some results/ folders (sm-vs-wind, wind-offset, ...)"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),

@@ -2,11 +2,12 @@
 
 The training runs live outside the repository (their checkpoints are hundreds of MB); this script
 reads their ``evaluations.json`` (each a periodic evaluation on the full mission at 4 m/s,
-deterministic policy), writes the extracted points to ``routes.json`` and draws ``routes.png``.
-``python results/training/routes/make_routes.py RUNS_ROOT`` with RUNS_ROOT holding the run
-directories named below; ``--from-json`` redraws the figure from the committed ``routes.json``;
-``--add RUNS_ROOT LABEL...`` extracts only the named routes from RUNS_ROOT into the committed
-``routes.json`` (routes whose runs are on another machine keep their committed points) and redraws.
+deterministic policy), writes the extracted points to ``OUT/routes.json`` and draws ``OUT/routes.png``
+(``--out`` default ``results/training/routes``). ``wt-inspect study routes RUNS_ROOT`` with RUNS_ROOT
+holding the run directories named below; ``--from-json`` redraws the figure from the committed
+``routes.json``; ``--add RUNS_ROOT LABEL...`` extracts only the named routes from RUNS_ROOT into the
+committed ``routes.json`` (routes whose runs are on another machine keep their committed points) and
+redraws.
 """
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from agents.curves import plot_routes, route_points
 from agents.seeds import TARGET
 from wt_inspect_env.atomic_io import write_text_atomic
 
-HERE = Path(__file__).parent
+DEFAULT_OUT = Path("results/training/routes")
 ROUTES = {
     "PPO from scratch, full task": ["ppo_scratch"],
     "behaviour cloning (VT-NMPC+ demos) + PPO": ["bc/seed_0", "bc_ppo"],
@@ -30,24 +31,36 @@ ROUTES = {
 }
 
 
-def main(argv: list[str]) -> int:
+def main(argv: list[str], prog: str = "wt-inspect study routes") -> int:
+    argv = list(argv)
+    if argv and argv[0] in {"-h", "--help"}:
+        print(f"usage: {prog} [--out DIR] (RUNS_ROOT | --from-json | --add RUNS_ROOT LABEL...)\n\n{__doc__}")
+        return 0
+    here = DEFAULT_OUT
+    if "--out" in argv:
+        i = argv.index("--out")
+        if i + 1 >= len(argv):
+            print(f"{prog}: error: --out needs a directory", file=sys.stderr)
+            return 2
+        here = Path(argv[i + 1])
+        del argv[i:i + 2]
     if argv and argv[0] == "--from-json":
-        routes = json.loads((HERE / "routes.json").read_text())["routes"]
+        routes = json.loads((here / "routes.json").read_text())["routes"]
     elif argv and argv[0] == "--add":
         root, labels = Path(argv[1]), argv[2:]
         unknown = [lab for lab in labels if lab not in ROUTES]
         if unknown:
-            print(f"make_routes: unknown route {unknown[0]!r}; known: {', '.join(ROUTES)}", file=sys.stderr)
+            print(f"{prog}: error: unknown route {unknown[0]!r}; known: {', '.join(ROUTES)}", file=sys.stderr)
             return 2
-        routes = json.loads((HERE / "routes.json").read_text())["routes"]
+        routes = json.loads((here / "routes.json").read_text())["routes"]
         routes.update({lab: route_points([root / d for d in ROUTES[lab]]) for lab in labels})
     else:
         root = Path(argv[0]) if argv else Path(".")
         routes = {label: route_points([root / d for d in dirs]) for label, dirs in ROUTES.items()}
     if not (argv and argv[0] == "--from-json"):
-        write_text_atomic(HERE / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
+        write_text_atomic(here / "routes.json", json.dumps({"runs": ROUTES, "target": TARGET, "routes": routes},
                                                           indent=1) + "\n")
-    print(plot_routes(routes, HERE / "routes.png", target=TARGET))
+    print(plot_routes(routes, here / "routes.png", target=TARGET))
     return 0
 
 

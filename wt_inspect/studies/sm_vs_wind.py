@@ -9,27 +9,26 @@ and at the extra winds flown into this directory (``results.csv``)::
 
     wt-inspect evaluate --scenario paper-faithful --controllers nmpc-authors,pampc-authors,vtnmpc,vtnmpc-later \\
         --winds 2,3,3.5,5 --out results/paper_faithful_wind --jobs 2
-    python results/paper_faithful_wind/sm_vs_wind.py
+    wt-inspect study sm-vs-wind --results results
 
 and, for each controller, interpolates linearly between the flown winds the mean wind at which its
 SM equals the paper's 4 m/s SM (the paper's "100 %" read as at least 99.95 %), i.e. the scale of the wind force (that wind / 4) that would make our
-plant reproduce the paper's number. It writes ``sm_vs_wind.csv`` and draws ``sm_vs_wind.png``.
+plant reproduce the paper's number. It writes ``sm_vs_wind.csv`` and draws ``sm_vs_wind.png`` into ``RESULTS/paper_faithful_wind``
+(``--out`` elsewhere).
 """
 from __future__ import annotations
 
+import argparse
 import csv
 import io
 import math
 import sys
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parents[1]))
-
-from wt_inspect.evaluation.report import read_csv  # noqa: E402
-from wt_inspect.evaluation.scenarios import paper_numbers  # noqa: E402
-from wt_inspect_env.atomic_io import write_text_atomic  # noqa: E402
-from wt_inspect_env.figure_io import save_and_close  # noqa: E402
+from wt_inspect.evaluation.report import read_csv
+from wt_inspect.evaluation.scenarios import paper_numbers
+from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.figure_io import save_and_close
 
 CONTROLLERS = {"nmpc-authors": ("nmpc", "NMPC as the authors ran it"),
                "pampc-authors": ("pampc", "PAMPC as the authors ran it"),
@@ -58,8 +57,21 @@ def wind_for(target: float, curve: dict[float, float]) -> float:
     return math.nan
 
 
-def main() -> int:
-    curves = read_sm([HERE.parents[0] / "paper_faithful" / "results.csv", HERE / "results.csv"])
+def main(argv: list[str] | None = None, prog: str = "wt-inspect study sm-vs-wind") -> int:
+    ap = argparse.ArgumentParser(prog=prog, description="SM against the mean wind under the authors' conditions")
+    ap.add_argument("--results", default="results", help="the results folder holding paper_faithful/ and "
+                    "paper_faithful_wind/ (default: ./results, i.e. run from the checkout's root)")
+    ap.add_argument("--out", default=None, help="where sm_vs_wind.csv/.png go (default RESULTS/paper_faithful_wind)")
+    args = ap.parse_args(argv)
+    root = Path(args.results)
+    out = Path(args.out) if args.out else root / "paper_faithful_wind"
+    inputs = [root / "paper_faithful" / "results.csv", root / "paper_faithful_wind" / "results.csv"]
+    missing = [str(p) for p in inputs if not p.is_file()]
+    if missing:
+        print(f"{prog}: error: {missing[0]!r} not found (--results names the folder holding it)", file=sys.stderr)
+        return 2
+    out.mkdir(parents=True, exist_ok=True)
+    curves = read_sm(inputs)
     rows = []
     for name, (paper_key, label) in CONTROLLERS.items():
         sm_paper = paper_numbers("paper", PAPER_WIND, paper_key).get("safety", math.nan)
@@ -71,7 +83,7 @@ def main() -> int:
     writer.writeheader()
     for r in rows:
         writer.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in r.items()})
-    write_text_atomic(HERE / "sm_vs_wind.csv", buf.getvalue())
+    write_text_atomic(out / "sm_vs_wind.csv", buf.getvalue())
     print(buf.getvalue(), end="")
 
     import matplotlib
@@ -91,9 +103,9 @@ def main() -> int:
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    save_and_close(fig, HERE / "sm_vs_wind.png", "png")
+    save_and_close(fig, out / "sm_vs_wind.png", "png")
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(main(sys.argv[1:]))

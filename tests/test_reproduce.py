@@ -1,0 +1,93 @@
+"""``wt-inspect reproduce``: the manifest covers every committed study, ``--check`` passes on the
+checkout (every stale study named in results/STALE.md) and the machinery - run, provenance, check,
+README numbers - works end to end on a study that does not fly."""
+from __future__ import annotations
+
+import io
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from wt_inspect import reproduce
+from wt_inspect.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_the_checkout_passes_the_check():
+    out = io.StringIO()
+    studies = reproduce.load_manifest(ROOT / reproduce.MANIFEST)
+    assert reproduce.check(ROOT, studies, out=out) == 0, out.getvalue()
+    assert len(studies) >= 30
+
+
+def test_list_prints_every_study(capsys):
+    assert cli_main(["reproduce", "--list", "--root", str(ROOT), "--only", "paper,lab", "--jobs", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "paper  (results/paper;" in text and "--out results/paper --no-progress --jobs 2" in text
+    assert "wt-inspect study wind-offset" in text
+
+
+def test_bad_input_is_one_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as e:
+        cli_main(["reproduce", "--list", "--root", str(ROOT), "--only", "nope"])
+    assert e.value.code == 2 and "unknown study 'nope'" in capsys.readouterr().err
+    bad = tmp_path / "m.toml"
+    bad.write_text('[[study]]\nname = "x"\nfolder = "results/x"\ncommands = ["rm -rf /"]\n')
+    with pytest.raises(SystemExit):
+        cli_main(["reproduce", "--list", "--manifest", str(bad)])
+    assert "wt-inspect ..." in capsys.readouterr().err
+
+
+def _tiny_checkout(tmp_path: Path) -> Path:
+    for d in ("paper_faithful", "paper_faithful_wind"):
+        (tmp_path / "results" / d).mkdir(parents=True)
+        shutil.copy(ROOT / "results" / d / "results.csv", tmp_path / "results" / d / "results.csv")
+    (tmp_path / "results" / "reproduce.toml").write_text(
+        '[[study]]\nname = "faithful"\nfolder = "results/paper_faithful"\ncommands = []\nmissing = "not here"\n\n'
+        '[[study]]\nname = "smw"\nfolder = "results/paper_faithful_wind"\n'
+        'commands = ["wt-inspect study sm-vs-wind --results results"]\n')
+    return tmp_path
+
+
+def test_run_writes_provenance_and_check_follows_it(tmp_path, monkeypatch):
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    root = _tiny_checkout(tmp_path)
+    assert cli_main(["reproduce", "--root", str(root), "--no-progress"]) == 0
+    prov = json.loads((root / "results/paper_faithful_wind/provenance.json").read_text())
+    assert prov["complete"] and prov["commands"] == ["wt-inspect study sm-vs-wind --results results"]
+    assert (root / "results/paper_faithful_wind/sm_vs_wind.csv").is_file()
+    studies = reproduce.load_manifest(root / reproduce.MANIFEST)
+    out = io.StringIO()
+    assert reproduce.check(root, studies, out=out) == 1          # 'faithful' is stale and not listed
+    assert "stale, not in results/STALE.md: faithful" in out.getvalue() and "smw" not in out.getvalue()
+    (root / "results/STALE.md").write_text("| study | reason | measured difference |\n|---|---|---|\n"
+                                           "| faithful | no command | not measured |\n")
+    assert reproduce.check(root, studies, out=io.StringIO()) == 0
+    # a changed command makes the study stale; so would other code
+    changed = [studies[0], reproduce.Study("smw", studies[1].folder, ("wt-inspect study sm-vs-wind --results .",))]
+    out = io.StringIO()
+    assert reproduce.check(root, changed, out=out) == 1 and "commands differ" in out.getvalue()
+    prov["code"] = "000000000000"
+    (root / "results/paper_faithful_wind/provenance.json").write_text(json.dumps(prov))
+    out = io.StringIO()
+    assert reproduce.check(root, studies, out=out) == 1 and "made by code 000000000000" in out.getvalue()
+    # a second run skips nothing that is stale and reruns it
+    assert cli_main(["reproduce", "--root", str(root), "--no-progress", "--only", "smw"]) == 0
+    assert reproduce.check(root, studies, out=io.StringIO()) == 0
+
+
+def test_readme_numbers_must_come_from_the_named_file(tmp_path):
+    root = _tiny_checkout(tmp_path)
+    (root / "results/paper_faithful_wind/results.md").write_text("| a | b |\n|---|---|\n| x | 1.0 % |\n")
+    block = "<!-- numbers: results/paper_faithful_wind/results.md -->\n| a | b |\n|---|---|\n{row}\n<!-- /numbers -->\n"
+    (root / "README.md").write_text(block.format(row="| x | 1.0 % |"))
+    assert reproduce.number_problems(root) == []
+    (root / "README.md").write_text(block.format(row="| x | 2.0 % |"))
+    assert reproduce.number_problems(root) == ["README.md: table row not in results/paper_faithful_wind/results.md: "
+                                               "| x | 2.0 % |"]
+    (root / "docs").mkdir()
+    (root / "docs/page.md").write_text('--8<-- "results/nope/results.md"\n')
+    assert any("includes results/nope/results.md" in p for p in reproduce.number_problems(root))

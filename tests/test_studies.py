@@ -1,0 +1,92 @@
+"""The analyses of wt_inspect.studies run on tiny inputs (each the way ``wt-inspect study NAME``
+runs it) and write what their results/ folders hold; results/ itself holds no Python."""
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from wt_inspect.cli import main as cli_main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_results_hold_no_python():
+    tracked = subprocess.run(["git", "ls-files", "results"], cwd=ROOT, capture_output=True, text=True)
+    files = tracked.stdout.split() if tracked.returncode == 0 else [
+        str(p.relative_to(ROOT)) for p in (ROOT / "results").rglob("*")]
+    assert [f for f in files if f.endswith((".py", ".ipynb", ".sh"))] == []
+
+
+def test_study_lists_and_refuses_unknown(capsys):
+    assert cli_main(["study", "--help"]) == 0
+    assert "sm-vs-wind" in capsys.readouterr().out
+    assert cli_main(["study", "nope"]) == 2
+    assert "unknown study 'nope'" in capsys.readouterr().err
+
+
+def test_sm_vs_wind_reproduces_the_committed_table(tmp_path):
+    res = tmp_path / "results"
+    for d in ("paper_faithful", "paper_faithful_wind"):
+        (res / d).mkdir(parents=True)
+        shutil.copy(ROOT / "results" / d / "results.csv", res / d / "results.csv")
+    assert cli_main(["study", "sm-vs-wind", "--results", str(res)]) == 0
+    out = res / "paper_faithful_wind"
+    assert (out / "sm_vs_wind.csv").read_text() == (ROOT / "results/paper_faithful_wind/sm_vs_wind.csv").read_text()
+    assert (out / "sm_vs_wind.png").stat().st_size > 0
+
+
+def test_sm_vs_wind_names_a_missing_input(tmp_path, capsys):
+    assert cli_main(["study", "sm-vs-wind", "--results", str(tmp_path)]) == 2
+    assert "not found" in capsys.readouterr().err
+
+
+def test_sm_vs_wind_interpolation():
+    from wt_inspect.studies.sm_vs_wind import wind_for
+    assert wind_for(0.5, {0.0: 1.0, 4.0: 0.0}) == pytest.approx(2.0)
+    assert wind_for(0.5, {0.0: 1.0, 4.0: 0.9}) != wind_for(0.5, {0.0: 1.0, 4.0: 0.9})   # NaN: never crossed
+
+
+def test_routes_redraws_from_json_and_extracts_runs(tmp_path):
+    out = tmp_path / "routes"
+    out.mkdir()
+    shutil.copy(ROOT / "results/training/routes/routes.json", out / "routes.json")
+    assert cli_main(["study", "routes", "--out", str(out), "--from-json"]) == 0
+    assert (out / "routes.png").stat().st_size > 0
+    # --add: one route's run extracted from a runs root, the others keep their committed points
+    runs = tmp_path / "runs" / "ppo_scratch"
+    runs.mkdir(parents=True)
+    (runs / "evaluations.json").write_text(json.dumps([{"env_steps": 10, "wall_time_s": 60.0, "mean": {
+        "coverage": 0.5, "safety_sm": 0.25, "centering_cm": 0.9}}]))
+    assert cli_main(["study", "routes", "--out", str(out), "--add", str(tmp_path / "runs"),
+                     "PPO from scratch, full task"]) == 0
+    routes = json.loads((out / "routes.json").read_text())["routes"]
+    assert routes["PPO from scratch, full task"] == [{"env_steps": 10, "wall_min": 1.0, "coverage": 0.5,
+                                                      "safety_sm": 0.25, "centering_cm": 0.9}]
+    assert cli_main(["study", "routes", "--out", str(out), "--add", str(tmp_path / "runs"), "nope"]) == 2
+
+
+@pytest.mark.slow
+def test_wind_offset_one_case_matches_the_committed_csv(tmp_path):
+    out = tmp_path / "wind_offset.csv"
+    assert cli_main(["study", "wind-offset", "--controllers", "nmpc", "--cases", "1", "--out", str(out)]) == 0
+    rows = list(csv.DictReader(out.open()))
+    committed = next(csv.DictReader((ROOT / "results/lab/wind_offset.csv").open()))
+    assert len(rows) == 1 and rows[0]["controller"] == committed["controller"] == "nmpc"
+    assert float(rows[0]["settled_error_m"]) == pytest.approx(float(committed["settled_error_m"]), abs=2e-3)
+
+
+@pytest.mark.slow
+def test_hold_check_runs_from_another_directory(tmp_path):
+    res = subprocess.run([sys.executable, "-m", "wt_inspect.cli", "study", "hold-check", "--seconds", "0.2"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         env={**__import__("os").environ, "MPLBACKEND": "Agg"})
+    assert res.returncode == 0, res.stderr[-2000:]
+    last = json.loads(res.stdout.strip().splitlines()[-1])
+    assert set(last) == {"4", "1"} and last["4"]["flight_s"] == pytest.approx(0.2, abs=0.011)
+    assert list(tmp_path.iterdir()) == []
