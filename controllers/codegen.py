@@ -9,19 +9,10 @@ The cache key is a SHA-256 of the *generated source* plus the compiler, its flag
 version. The source is the problem (horizon, model parameters, residuals and constraints are all
 in it), so any change to the problem gives a new key and a stale library can never be loaded.
 
-A cached library is native code that runs in this process the moment it is loaded, so the cache
-is guarded (:class:`LibraryCache`, also used by the HPIPM shim):
-
-* the directory is created private (0700) and refused - a one-line :class:`CacheDirError`
-  naming it - if it is owned by another user or is group- or world-writable (anyone who can
-  write there could plant a library);
-* each library's SHA-256 is recorded at compile time beside it (``NAME.so.sha256``) and checked
-  before every load; a library without a digest, with another digest (replaced, truncated,
-  corrupted) is rebuilt, with a warning, and so is one that fails to load (a garbage file that
-  passes no digest check can never make every later construction fail);
-* a library is built in a private temporary directory inside the cache and renamed into place
-  (atomic: two processes compiling the same problem cannot load a half-written file);
-  temporary directories left by a killed compile are removed the next time the cache is used.
+A cached library is native code that runs in this process the moment it is loaded, so it goes
+through the guarded library cache of :mod:`wt_inspect_env.native_cache` (private directory,
+digest checked before every load, atomic builds), which the HPIPM shim and the simulator's flight
+core use too.
 
 Only pure numerical functions go through this path; the HPIPM call itself is never generated
 (calling HPIPM from generated code has crashed; the QP is solved through CasADi's plugin or
