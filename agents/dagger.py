@@ -50,8 +50,17 @@ from wt_inspect_env.atomic_io import atomic_path, write_text_atomic
 from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry, check_observation
 from wt_inspect_env.validation import check_positive, check_unknown_options
 
-from .imitation import (actor_parameters, check_dataset_matches, dataset_arrays, invert_action, label_weights,
-                        load_demonstrations, new_clone_model, normalize_features, policy_mean_action)
+from .imitation import (
+    actor_parameters,
+    check_dataset_matches,
+    dataset_arrays,
+    invert_action,
+    label_weights,
+    load_demonstrations,
+    new_clone_model,
+    normalize_features,
+    policy_mean_action,
+)
 
 STATE_FORMAT = 1
 
@@ -256,8 +265,13 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
 
     from .policy import algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
     from .safe_load import load_sb3_model, load_vecnormalize
-    from .training import (EVAL_SEED_BASE, _policy_from_model, make_raw_env, make_vec_env, run_episode,
-                           summarize_episodes)
+    from .training import (
+        EVAL_SEED_BASE,
+        _policy_from_model,
+        make_raw_env,
+        run_episode,
+        summarize_episodes,
+    )
 
     cfg = config if config is not None else DAggerConfig()
     if recipe.algo != "ppo":

@@ -74,7 +74,7 @@ def _loader(algo: str):
     def load(env: Any, path: str, trust_model: bool = False) -> Any:
         """Load ``path`` for ``env``; a missing optional dependency is a one-line ValueError."""
         try:
-            from .policy import load_sb3_policy   # torch and stable-baselines3 only now
+            from .policy import load_sb3_policy  # torch and stable-baselines3 only now
         except ModuleNotFoundError as exc:
             if exc.name and exc.name.split(".")[0] in {"torch", "stable_baselines3"}:
                 raise ValueError(f"controller '{algo}:{path}' needs the optional dependency {exc.name!r}; "

@@ -88,7 +88,7 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     if len(_recipes(args)) > 1:
         print(f"{prog}: error: several --recipe files need --seeds (one run per recipe and seed)", file=sys.stderr)
         return 2
-    from .training import train   # imports torch only once the arguments are valid
+    from .training import train  # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
                         resume=args.resume, seed=args.seed, max_minutes=args.max_minutes, eval_every=args.eval_every,

@@ -40,7 +40,15 @@ from .nmpc import NMPCConfig, NMPCWeights
 from .pampc import PAMPCPolicy, smooth_depth
 from .rti import OCP
 from .rti_policy import config_ocp
-from .tracking import CLOCK, N_TRACKING_PARAMS, NX_AUG, TrackingMPCPolicy, augmented_dynamics, tracking_ocp, tracking_terms
+from .tracking import (
+    CLOCK,
+    N_TRACKING_PARAMS,
+    NX_AUG,
+    TrackingMPCPolicy,
+    augmented_dynamics,
+    tracking_ocp,
+    tracking_terms,
+)
 
 
 @dataclass(frozen=True)

@@ -86,9 +86,8 @@ import time
 from dataclasses import dataclass, field, fields
 from typing import Any, ClassVar, Mapping
 
-import numpy as np
-
 import casadi as ca
+import numpy as np
 
 from wt_inspect_env.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
 from wt_inspect_env.geometry import HorizontalNormal

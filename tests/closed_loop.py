@@ -9,8 +9,14 @@ from typing import Any
 import numpy as np
 
 from wt_inspect.studies.closed_loop import (  # noqa: F401 - re-exported for the tests
-    ClosedLoopResult, ModelPlant, SurfacePass, inspection_geometry, make_observation, offset_start,
-    run_closed_loop)
+    ClosedLoopResult,
+    ModelPlant,
+    SurfacePass,
+    inspection_geometry,
+    make_observation,
+    offset_start,
+    run_closed_loop,
+)
 from wt_inspect_env.quadrotor import QuadrotorParams
 
 

@@ -12,8 +12,14 @@ import pytest
 import wt_inspect_env  # noqa: F401 - registers the env ids
 from agents.policy import load_sb3_policy, sidecar_paths
 from agents.recipe import Recipe, default_recipe_path, load_recipe
-from agents.wrappers import (ActionConfig, AgentSpec, FeatureConfig, FeatureEncoder, InspectionAgentEnv,
-                             ResidualHoverAction)
+from agents.wrappers import (
+    ActionConfig,
+    AgentSpec,
+    FeatureConfig,
+    FeatureEncoder,
+    InspectionAgentEnv,
+    ResidualHoverAction,
+)
 from wt_inspect_env.dynamics import yaw_to_quat
 from wt_inspect_env.quadrotor import GRAVITY
 from wt_inspect_env.spaces import ActionScaling
@@ -363,8 +369,9 @@ def test_short_training_checkpoints_resumes_and_the_model_runs_in_the_harness(tm
 def test_policy_adaptor_reproduces_the_training_pipeline_exactly(tmp_path):
     """Raw env + load_sb3_policy flies the same trajectory as the training wrapper + VecNormalize
     statistics + the network, step for step."""
-    from agents.training import train
     from stable_baselines3 import PPO
+
+    from agents.training import train
     train("ppo", "surface", 600, 1, tmp_path, recipe=_tiny_recipe(), progress_bar=False)
     path = tmp_path / "model.zip"
     doc = json.loads(sidecar_paths(path)[1].read_text())

@@ -8,8 +8,12 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from controllers.authors_baselines import (AuthorsNMPCPolicy, authors_image_coordinates,
-                                           body_up_camera_rotation, wrapped_yaw_quaternion)
+from controllers.authors_baselines import (
+    AuthorsNMPCPolicy,
+    authors_image_coordinates,
+    body_up_camera_rotation,
+    wrapped_yaw_quaternion,
+)
 from controllers.nmpc import NMPCPolicy
 from controllers.pampc import PAMPCConfig, image_coordinates
 from wt_inspect_env.camera import CameraConfig

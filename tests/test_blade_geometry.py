@@ -137,6 +137,7 @@ def test_nrel_plan_is_complete_clear_and_its_normals_turn_with_the_twist(nrel, n
 
 def test_preset_through_gym_make_and_overrides():
     import gymnasium as gym
+
     import wt_inspect_env  # noqa: F401 - registers the ids
     env = gym.make("WindTurbineInspection-Surface-v0", turbine={"preset": "nrel-5mw", "mesh_step": 2.0}, wind="none")
     try:

@@ -12,8 +12,14 @@ import numpy as np
 import pytest
 
 from wt_inspect_env.camera import CameraConfig, GimbalCamera
-from wt_inspect_env.coverage import (CoverageTracker, Occluder, PyBulletOccluder, TriangleVisibility,
-                                     TrimeshOccluder, visible_triangles)
+from wt_inspect_env.coverage import (
+    CoverageTracker,
+    Occluder,
+    PyBulletOccluder,
+    TriangleVisibility,
+    TrimeshOccluder,
+    visible_triangles,
+)
 
 YAW_PLUS_Y = np.array([0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)])  # level, nose along +y
 
@@ -489,6 +495,7 @@ def test_default_camera_covers_every_surface_of_the_default_turbine_from_the_sta
     """Sweep the ideal stand-off pose (7 m along n_xy, level camera aimed along -n_xy) along each
     inspected face's centre line of the default turbine, with occlusion by the whole turbine."""
     import pybullet as p
+
     from wt_inspect_env.turbine import build_turbine
     tb = build_turbine()
     cid = _turbine_client(tb)
@@ -518,6 +525,7 @@ def test_tower_hides_blade_roots_seen_from_behind():
     """From behind the tower, the triangles dropped by the occlusion test are exactly those whose
     line of sight crosses the tower cylinder (checked analytically)."""
     import pybullet as p
+
     from wt_inspect_env.turbine import build_turbine
     tb = build_turbine()
     spec = tb.spec

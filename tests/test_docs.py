@@ -7,12 +7,14 @@ import importlib
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ROOT / "docs"
 
 
 def _nav_pages() -> list[str]:
-    return re.findall(r":\s*([\w/]+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(), flags=re.M)
+    return re.findall(r":\s*([\w/-]+\.md)\s*$", (ROOT / "mkdocs.yml").read_text(), flags=re.M)
 
 
 def test_every_page_is_in_the_nav_and_exists():
@@ -64,3 +66,61 @@ def test_cli_page_lists_every_config_key_and_the_reward_terms_are_documented():
     assert [k for k in KINDS if f"`{k}`" not in cli] == []
     env = (DOCS / "environment.md").read_text()
     assert [t for t in REWARD_TERMS if f"| `{t}` |" not in env] == []
+
+
+# Names of files that are not in this repository (assembled, so this file does not contain them).
+OUTSIDE = ("../" + "shared", "authors-code-" + "notes", "anchors" + ".md", "acados" + "_vt")
+
+
+def _tracked_text_files() -> list[Path]:
+    import subprocess
+    res = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True)
+    if res.returncode != 0:   # not a git checkout (an sdist): every file under the root
+        return [p for p in ROOT.rglob("*") if p.is_file() and ".git" not in p.parts]
+    return [ROOT / name for name in res.stdout.decode().split("\0") if name]
+
+
+def test_no_file_cites_anything_outside_the_repository():
+    bad = []
+    for path in _tracked_text_files():
+        try:
+            text = path.read_text(encoding="utf-8")
+        except (UnicodeDecodeError, OSError):   # binary (figures, models) or gone
+            continue
+        bad += [f"{path.relative_to(ROOT)}: {name}" for name in OUTSIDE if name in text]
+    assert bad == []
+
+
+README = ROOT / "README.md"
+
+
+def test_readme_is_a_short_door_and_its_test_command_is_ci_s():
+    text = README.read_text()
+    assert len(text.splitlines()) <= 250
+    ci = (ROOT / ".ci" / "run").read_text()
+    marker = "# --- README test command (keep in sync with README \"Quick start\") ---\n"
+    command = ci.split(marker, 1)[1].splitlines()[0]
+    assert command.startswith("pip install torch==")
+    assert f"```bash\n{command}\n```" in text
+
+
+def test_readme_links_exist():
+    missing = [t for t in re.findall(r"\]\(([^)#\s]+)", README.read_text())
+               if "://" not in t and not (ROOT / t).exists()]
+    assert missing == []
+
+
+@pytest.mark.slow
+def test_readme_python_example_runs_from_another_directory(tmp_path):
+    import os
+    import subprocess
+    import sys
+    blocks = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.S)
+    assert blocks
+    for code in blocks:
+        res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=300, env={**os.environ, "MPLBACKEND": "Agg"})
+        assert res.returncode == 0, res.stderr[-2000:]
+        coverage, sm, cm = (float(v) for v in res.stdout.split())
+        assert 0.0 <= coverage <= 1.0 and sm > 0.9 and cm > 0.9
+    assert list(tmp_path.iterdir()) == []

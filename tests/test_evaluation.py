@@ -16,14 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wt_inspect.evaluation import OutputDirError, evaluate_policy, load_run, run_evaluation
-from wt_inspect.evaluation.runner import save_run
-from wt_inspect.evaluation import registry
+from wt_inspect.evaluation import OutputDirError, evaluate_policy, load_run, registry, run_evaluation
 from wt_inspect.evaluation.cli import main as cli_main
 from wt_inspect.evaluation.report import CSV_COLUMNS, read_csv
+from wt_inspect.evaluation.runner import save_run
 from wt_inspect.evaluation.scenarios import env_options
-from wt_inspect_env.policy import Policy
 from wt_inspect_env.metrics import compute_metrics
+from wt_inspect_env.policy import Policy
 
 REQUIRED = ("scenario", "controller", "wind", "seed", "coverage", "safety", "centering", "mean_distance",
             "min_distance", "collisions", "flight_time", "solve_median_ms", "solve_p99_ms")

@@ -8,9 +8,16 @@ import numpy as np
 import pytest
 
 from wt_inspect_env.dynamics import quat_to_rotmat_np, yaw_to_quat
-from wt_inspect_env.geometry import (HorizontalNormal, camera_heading, direction_to_drone, facing_yaw,
-                                     heading_and_distance, horizontal_normal, standoff_position,
-                                     standoff_state)
+from wt_inspect_env.geometry import (
+    HorizontalNormal,
+    camera_heading,
+    direction_to_drone,
+    facing_yaw,
+    heading_and_distance,
+    horizontal_normal,
+    standoff_position,
+    standoff_state,
+)
 from wt_inspect_env.quadrotor import AIR_DENSITY, GRAVITY, drag_force, get_preset, hover_thrust
 from wt_inspect_env.spaces import ActionScaling
 

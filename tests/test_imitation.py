@@ -12,11 +12,18 @@ import wt_inspect_env  # noqa: F401
 pytest.importorskip("minari")
 pytest.importorskip("stable_baselines3")
 
-from agents.imitation import (BCConfig, behaviour_clone, check_dataset_matches, dataset_arrays,  # noqa: E402
-                              invert_action, load_demonstrations)
+from agents.imitation import (  # noqa: E402
+    BCConfig,
+    behaviour_clone,
+    check_dataset_matches,
+    dataset_arrays,
+    invert_action,
+    load_demonstrations,
+)
 from agents.recipe import load_recipe  # noqa: E402
 from agents.wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction  # noqa: E402
-from wt_inspect.demonstrations import DemoConfig, main as demos_main, record_demonstrations  # noqa: E402
+from wt_inspect.demonstrations import DemoConfig, record_demonstrations  # noqa: E402
+from wt_inspect.demonstrations import main as demos_main
 
 RECIPE = "agents/recipes/bc_full.json"
 

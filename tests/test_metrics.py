@@ -6,8 +6,13 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.metrics import (InspectionMetrics, MetricAccumulator, MetricsConfig, compute_metrics,
-                                    heading_and_distance)
+from wt_inspect_env.metrics import (
+    InspectionMetrics,
+    MetricAccumulator,
+    MetricsConfig,
+    compute_metrics,
+    heading_and_distance,
+)
 
 CENTER = np.array([10.0, -5.0, 100.0])
 

@@ -8,8 +8,8 @@ import math
 
 import numpy as np
 import pytest
-
 from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start, run_in_simulator
+
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, residual_functions
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import TrackingReference, standoff_reference

@@ -7,10 +7,9 @@ import math
 
 import numpy as np
 import pytest
-
 from closed_loop import ModelPlant, SurfacePass, offset_start, run_closed_loop, run_in_simulator
-from controllers.pampc import (PAMPCConfig, PAMPCPolicy, PAMPCWeights, build_ocp,
-                               camera_rotation, projection_function)
+
+from controllers.pampc import PAMPCConfig, PAMPCPolicy, PAMPCWeights, build_ocp, camera_rotation, projection_function
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import standoff_reference
 from wt_inspect_env.camera import CameraConfig, GimbalCamera

@@ -9,8 +9,15 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from wt_inspect_env.planner import (HeldKarp, PlannerConfig, cluster_surfaces, describe_surface, plan_inspection,
-                                    solve_tour, tour_cost)
+from wt_inspect_env.planner import (
+    HeldKarp,
+    PlannerConfig,
+    cluster_surfaces,
+    describe_surface,
+    plan_inspection,
+    solve_tour,
+    tour_cost,
+)
 from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
 from wt_inspect_env.planner.path import offset_direction
 from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
@@ -660,6 +667,7 @@ def test_env_flies_a_turbine_at_any_azimuth():
     mission.turbines holds one turbine per phase and mission.phase runs 1..3 (what the env and the
     vector env read), the default (the paper's 120 deg turn) still refuses it and says what to give."""
     import gymnasium as gym
+
     import wt_inspect_env  # noqa: F401 - registers the ids
     env = gym.make("WindTurbineInspection-v0", turbine={"rotor_azimuth_deg": 60.0, "mesh_step": 2.5},
                    rotor_turn_deg=None, wind="none")

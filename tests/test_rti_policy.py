@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 import pytest
-
 from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start, run_closed_loop
+
 from controllers.nmpc import NMPCPolicy
 from controllers.pampc import PAMPCPolicy
 from controllers.rti import OCP, RTIOptions

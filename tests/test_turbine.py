@@ -6,8 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.turbine import (TurbineMesh, TurbineSpec, build_turbine, load_turbine_mesh,
-                                    rotation_matrix)
+from wt_inspect_env.turbine import TurbineMesh, TurbineSpec, build_turbine, load_turbine_mesh, rotation_matrix
 
 
 @pytest.fixture(scope="module")
@@ -273,6 +272,7 @@ def test_bad_load_options_name_the_field(turb, tmp_path, kw, match):
 def test_env_flies_the_exported_turbine(turb, tmp_path):
     """gym.make(..., turbine_mesh=<wt-inspect plan's turbine.stl>) builds the same mission."""
     import gymnasium as gym
+
     import wt_inspect_env  # noqa: F401 - registers the ids
     path = turb.export(tmp_path / "turbine.stl")
     env = gym.make("WindTurbineInspection-v0", turbine_mesh=str(path), wind="none")

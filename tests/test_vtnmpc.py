@@ -5,17 +5,25 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 import pytest
+from closed_loop import ModelPlant, SurfacePass, inspection_geometry, make_observation, offset_start, run_closed_loop
 
-from closed_loop import (ModelPlant, SurfacePass, inspection_geometry, make_observation,
-                               offset_start, run_closed_loop)
-from wt_inspect_env.policy import Policy
 from controllers.rti import RTIOptions
-from controllers.vtnmpc import (STAGE_RESIDUAL_NAMES, WEIGHT_SETS, VTNMPCConfig, VTNMPCPolicy,
-                                VTNMPCWeights, attitude_residual, build_ocp, residual_functions,
-                                visual_terms, vtnmpc_parameters)
+from controllers.vtnmpc import (
+    STAGE_RESIDUAL_NAMES,
+    WEIGHT_SETS,
+    VTNMPCConfig,
+    VTNMPCPolicy,
+    VTNMPCWeights,
+    attitude_residual,
+    build_ocp,
+    residual_functions,
+    visual_terms,
+    vtnmpc_parameters,
+)
+from wt_inspect_env.dynamics import quat_to_rotmat_np
 from wt_inspect_env.geometry import horizontal_normal
 from wt_inspect_env.geometry import standoff_state as ideal_state
-from wt_inspect_env.dynamics import quat_to_rotmat_np
+from wt_inspect_env.policy import Policy
 from wt_inspect_env.quadrotor import GRAVITY, get_preset
 from wt_inspect_env.wind import GustWind
 

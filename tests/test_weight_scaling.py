@@ -16,16 +16,15 @@ import math
 
 import numpy as np
 import pytest
-
 from closed_loop import ModelPlant, SurfacePass, run_closed_loop
+
 from controllers.authors_baselines import AUTHORS_NMPC_WEIGHTS
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights
 from controllers.pampc import PAMPCConfig, PAMPCPolicy, PAMPCWeights
 from controllers.rti import RTIOptions
 from controllers.rti_policy import REFERENCE_D_REF, ResidualScales
 from controllers.tracking import TrackingReference
-from controllers.vtnmpc import (WEIGHT_SETS, VTNMPC_PLUS, VTNMPCConfig, VTNMPCPolicy, VTNMPCWeights,
-                                vtnmpc_parameters)
+from controllers.vtnmpc import VTNMPC_PLUS, WEIGHT_SETS, VTNMPCConfig, VTNMPCPolicy, VTNMPCWeights, vtnmpc_parameters
 from wt_inspect_env.camera import CameraConfig
 from wt_inspect_env.dynamics import yaw_to_quat
 from wt_inspect_env.geometry import standoff_state

@@ -5,8 +5,17 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.wind import (ConstantWind, DrydenWind, FunctionWind, GustWind, ShearWind,
-                                 SumWind, WindField, dryden_low_altitude, make_wind)
+from wt_inspect_env.wind import (
+    ConstantWind,
+    DrydenWind,
+    FunctionWind,
+    GustWind,
+    ShearWind,
+    SumWind,
+    WindField,
+    dryden_low_altitude,
+    make_wind,
+)
 
 FT = 0.3048
 ONE = np.zeros((1, 3))

@@ -77,8 +77,9 @@ def load_manifest(path: str | Path) -> list[Study]:
         name, folder, commands = entry.get("name"), entry.get("folder"), entry.get("commands")
         if unknown or not isinstance(name, str) or not isinstance(folder, str) or not isinstance(commands, list) \
                 or not all(isinstance(c, str) and c.startswith("wt-inspect ") for c in commands):
+            extra = f"; unknown keys {sorted(unknown)}" if unknown else ""
             raise ValueError(f"manifest {str(p)!r}: study #{i} ({name!r}) needs name, folder and commands "
-                             f"(a list of 'wt-inspect ...' strings){'; unknown keys ' + str(sorted(unknown)) if unknown else ''}")
+                             f"(a list of 'wt-inspect ...' strings){extra}")
         if name in seen:
             raise ValueError(f"manifest {str(p)!r}: study {name!r} is listed twice")
         seen.add(name)

@@ -39,10 +39,10 @@ from .camera import GimbalCamera
 from .coverage import CoverageTracker, PyBulletOccluder, TriangleVisibility
 from .dynamics import yaw_to_quat
 from .env_config import EnvConfig
-from .randomization import RandomizationDraw, noisy_state
-from .randomization import draw as draw_randomization
 from .metrics import MetricAccumulator, MetricsConfig
 from .mission import Mission, build_mission
+from .randomization import RandomizationDraw, noisy_state
+from .randomization import draw as draw_randomization
 from .reference import InspectionReference, ReferenceConfig, ReferenceSample
 from .sim import RAY_MASK_WITHOUT_DRONE, QuadrotorSim, SimConfig
 from .spaces import OBS_SHAPES, ActionScaling

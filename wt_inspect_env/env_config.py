@@ -8,7 +8,7 @@ a ``ValueError`` listing the valid ones.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping
 
 from .camera import CameraConfig
@@ -17,8 +17,15 @@ from .quadrotor import QuadrotorParams, get_preset
 from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
 from .turbine import TurbineSpec
-from .validation import (check_array, coerce_config, check_choice, check_field_types, check_finite, check_positive,
-                         check_unknown_options)
+from .validation import (
+    check_array,
+    check_choice,
+    check_field_types,
+    check_finite,
+    check_positive,
+    check_unknown_options,
+    coerce_config,
+)
 
 TASKS = ("full", "blade", "surface")
 OBS_MODES = ("state", "rgb", "depth", "rgbd")

@@ -35,9 +35,7 @@ from typing import Any, Callable, Mapping
 import numpy as np
 import scipy.linalg
 
-from .validation import (check_array, check_choice, check_finite, check_positive,
-                         check_unknown_options)
-
+from .validation import check_array, check_choice, check_finite, check_positive, check_unknown_options
 
 FT = 0.3048  # metres per foot (MIL-F-8785C is written in feet)
 MAX_WIND_SPEED = 50.0  # [m/s] IEC 61400-1 class I V_ref; see the module docstring

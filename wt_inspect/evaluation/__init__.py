@@ -288,7 +288,7 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     try:
         files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
         if figures:
-            from .figures import make_figures   # matplotlib only when drawing
+            from .figures import make_figures  # matplotlib only when drawing
             files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario,
                                             figure_format)
         stale = stale_files(out_dir, specs, files.get("figures"))

@@ -62,8 +62,8 @@ class ModelPlant:
     for the PyBullet simulator with the same ``reset``/``step``/``state`` interface.
 
     The plant has the simulator's drag (:func:`wt_inspect_env.quadrotor.drag_force` of the airspeed
-    v_B - R^T v_wind), which the controllers' model (like the paper's) does not know; ``wind(t, positions) -> velocities``
-    (world) sets the air velocity (still air without it).
+    v_B - R^T v_wind), which the controllers' model (like the paper's) does not know;
+    ``wind(t, positions) -> velocities`` (world) sets the air velocity (still air without it).
     """
 
     def __init__(self, params: QuadrotorParams, dt: float = 0.01, substeps: int = 10,

@@ -12,9 +12,10 @@ and at the extra winds flown into this directory (``results.csv``)::
     wt-inspect study sm-vs-wind --results results
 
 and, for each controller, interpolates linearly between the flown winds the mean wind at which its
-SM equals the paper's 4 m/s SM (the paper's "100 %" read as at least 99.95 %), i.e. the scale of the wind force (that wind / 4) that would make our
-plant reproduce the paper's number. It writes ``sm_vs_wind.csv`` and draws ``sm_vs_wind.png`` into ``RESULTS/paper_faithful_wind``
-(``--out`` elsewhere).
+SM equals the paper's 4 m/s SM (the paper's "100 %" read as at least 99.95 %), i.e. the scale of
+the wind force (that wind / 4) that would make our plant reproduce the paper's number. It writes
+``sm_vs_wind.csv`` and draws ``sm_vs_wind.png`` into ``RESULTS/paper_faithful_wind`` (``--out``
+elsewhere).
 """
 from __future__ import annotations
 

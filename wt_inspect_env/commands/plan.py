@@ -14,12 +14,12 @@ import time
 from pathlib import Path
 
 from ..atomic_io import atomic_paths, check_out_dir
-from ..validation import coerce_config
-from .args import float_or_auto, json_object
 from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection
 from ..planner.config import STANDOFF_MODES
 from ..turbine import TurbineSpec, build_turbine
+from ..validation import coerce_config
+from .args import float_or_auto, json_object
 
 _SPEC_ARGS = {  # option -> TurbineSpec field
     "tower_height": "tower_height", "blade_length": "blade_length", "blade_width": "blade_width",
@@ -108,7 +108,7 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
             turbine.export(tmp["turbine"])
             plan.to_csv(tmp["path"])
             if not args.no_plot:
-                from ..planner.plot import save_plan_figure   # matplotlib only when drawing
+                from ..planner.plot import save_plan_figure  # matplotlib only when drawing
                 save_plan_figure(plan, tmp["figure"], args.figure_format)
     except OSError as exc:
         print(f"{prog}: error: cannot write --out {str(out)!r}: {exc.strerror or exc}", file=sys.stderr)

@@ -5,8 +5,14 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from ..validation import (check_array, check_choice, check_field_types,
-                          check_positive, check_range, check_unknown_options)
+from ..validation import (
+    check_array,
+    check_choice,
+    check_field_types,
+    check_positive,
+    check_range,
+    check_unknown_options,
+)
 
 STANDOFF_MODES = ("horizontal", "normal")
 

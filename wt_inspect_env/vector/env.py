@@ -40,10 +40,10 @@ from ..camera import GimbalCamera
 from ..coverage import TriangleVisibility
 from ..env import grow_to_start, observation_space, start_state
 from ..env_config import EnvConfig
-from ..randomization import RandomizationDraw, noisy_state
-from ..randomization import draw as draw_randomization
 from ..metrics import MetricsConfig
 from ..mission import build_mission
+from ..randomization import RandomizationDraw, noisy_state
+from ..randomization import draw as draw_randomization
 from ..reference import InspectionReference, ReferenceConfig
 from ..sim import SimConfig
 from ..spaces import ActionScaling
