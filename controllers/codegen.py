@@ -32,8 +32,15 @@ from pathlib import Path
 import casadi as ca
 
 # The guarded library cache lives with the simulator, which compiles its flight core through it too.
-from wt_inspect_env.native_cache import (CACHE_DIR_MODE, CACHE_ENV, DIGEST_SUFFIX, CacheDirError,  # noqa: F401
-                                         CompileError, LibraryCache, default_cache_dir)
+from wt_inspect_env.native_cache import (  # noqa: F401
+    CACHE_DIR_MODE,
+    CACHE_ENV,
+    DIGEST_SUFFIX,
+    CacheDirError,
+    CompileError,
+    LibraryCache,
+    default_cache_dir,
+)
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-O2", "-shared", "-fPIC")
 

@@ -183,6 +183,7 @@ def test_the_direct_hpipm_path_carries_the_clearance_constraint():
     constraints: pushed towards a wall, the plan stops d_min in front of it, the same plan as
     CasADi's HPIPM plugin to QP tolerance, and no warning says it fell back."""
     import warnings
+
     from controllers.rti import RTIOptions
     wall_tris = _box((0.0, 0.0, 30.0), (0.5, 20.0, 20.0))
     x = np.zeros(10)

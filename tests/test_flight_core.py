@@ -57,7 +57,7 @@ def test_controller_side_is_the_python_rate_loop_and_mixer_including_saturation(
     rng = np.random.default_rng(3)
     saturated = 0
     idx = np.array([0])
-    for step in range(200):
+    for _ in range(200):
         cmd = np.array([*rng.normal(0, 3.0, 3), rng.uniform(0.0, 1.6) * M100.weight])
         omega_b = rng.normal(0, 1.0, 3)
         core.omega[0] = omega_b                # identity attitude: body = world

@@ -132,7 +132,8 @@ class WindTurbineInspectionEnv(gym.Env):
 
         self.mission: Mission = build_mission(cfg)
         self.wind = make_wind(cfg.wind)
-        self.sim = QuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz, integrator=cfg.integrator),
+        self.sim = QuadrotorSim(self.params, SimConfig(ctrl_hz=cfg.ctrl_hz, physics_hz=cfg.physics_hz,
+                                                        integrator=cfg.integrator),
                                 wind=self.wind, obstacles=self.mission.turbines[0].mesh,
                                 obstacle_texture=self._texture(render_mode))
         if render_mode == "human":

@@ -130,7 +130,7 @@ class FlightCore:
 
     def __init__(self, params: QuadrotorParams, config: Any, n: int,
                  cache_dir: str | os.PathLike | None = None) -> None:
-        from .sim import SubstepConstants   # the per-sub-step constants' one home
+        from .sim import SubstepConstants  # the per-sub-step constants' one home
         self._constants = SubstepConstants
         self.params, self.config, self.n = params, config, int(n)
         self._lib = load_library(cache_dir)
@@ -167,7 +167,8 @@ class FlightCore:
         self._idx = np.arange(n, dtype=np.int64)       # scratch list of drone indices
         self._all = np.arange(n, dtype=np.int64)
         self._force, self._torque = np.zeros((n, 3)), np.zeros((n, 3))
-        self._ptr = {name: getattr(self, name).ctypes.data for name in ("commands", "winds", "_idx", "_all", "_force", "_torque")}
+        self._ptr = {name: getattr(self, name).ctypes.data
+                     for name in ("commands", "winds", "_idx", "_all", "_force", "_torque")}
         for i in range(n):
             self.set_plant(i, params, 1.0)
 

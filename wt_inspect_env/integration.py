@@ -33,7 +33,7 @@ import pybullet as p
 
 from .flight_core import INTEGRATORS, FlightCore  # noqa: F401 - INTEGRATORS re-exported
 from .proximity import MeshProximity
-from .quadrotor import GRAVITY, QuadrotorParams
+from .quadrotor import QuadrotorParams
 
 CONTACT_TOL = 1e-3       # Bullet keeps points a little beyond touching; count only real contact
 _MARGIN = 0.1            # [m] beyond the box's sphere and the reach: Bullet's collision margins

@@ -24,8 +24,8 @@ from typing import Any
 import numpy as np
 
 from ..dynamics import hover_state
-from ..quadrotor import PRESETS, get_preset
 from ..integration import INTEGRATORS
+from ..quadrotor import PRESETS, get_preset
 from ..sim import QuadrotorSim, SimConfig
 from ..wind import WIND_TYPES, make_wind
 from .timing_reference import raw_pybullet_rate
