@@ -37,7 +37,6 @@ ATTITUDE_IGNORED = mavlink.ATTITUDE_TARGET_TYPEMASK_ATTITUDE_IGNORE            #
 RATES_IGNORED = (mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_ROLL_RATE_IGNORE
                  | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_PITCH_RATE_IGNORE
                  | mavlink.ATTITUDE_TARGET_TYPEMASK_BODY_YAW_RATE_IGNORE)      # attitude + thrust used
-RESULT_NAMES = {v.name.replace("MAV_RESULT_", ""): k for k, v in mavlink.enums["MAV_RESULT"].items()}
 
 
 class VehicleError(RuntimeError):
