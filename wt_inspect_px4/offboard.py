@@ -83,6 +83,7 @@ class FlyConfig:
     arm: bool = False
     connect_timeout: float = 10.0
     warmup_s: float = 0.6                    # set-points streamed before OFFBOARD is requested
+    hold_timeout: float = 5.0                # how long the hold request is retried (streaming) at the end
     trust_model: bool = False
 
     def __post_init__(self) -> None:
@@ -90,7 +91,7 @@ class FlyConfig:
             raise ValueError(f"site must be a Site, got {self.site!r}")
         if self.scenario not in SCENARIOS:
             raise ValueError(f"unknown scenario {self.scenario!r}; valid: {', '.join(SCENARIOS)}")
-        for name in ("hover_tolerance", "connect_timeout", "warmup_s"):
+        for name in ("hover_tolerance", "connect_timeout", "warmup_s", "hold_timeout"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ValueError(f"{name} must be a positive number, got {v!r}")
@@ -403,7 +404,7 @@ def run_flight(cfg: FlyConfig, *, policy: Any = None, faults: LinkFaults | None 
         summary["overruns"] = vsim.overruns
     finally:
         if engaged or vehicle.in_offboard:
-            hold_confirmed = vehicle.hold(hover_n)
+            hold_confirmed = vehicle.hold(hover_n, timeout=cfg.hold_timeout)
         summary["hold_confirmed"] = hold_confirmed
         summary["abort_reason"] = vehicle.abort_reason
         summary["stream"] = {"sent": vehicle.stream.sent, "keepalive": vehicle.stream.keepalive,

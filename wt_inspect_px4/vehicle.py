@@ -119,6 +119,7 @@ class Vehicle:
         self._setpoint: Setpoint | None = None
         self._setpoint_fresh = 0.0          # when the control loop last gave a new command
         self._streaming = threading.Event()
+        self._commanding = False            # the control loop has sent its first command
         self._abort_reason: str | None = None
         self._fallback: Setpoint | None = None
         self.stream = StreamStats()
@@ -317,6 +318,7 @@ class Vehicle:
             if self._abort_reason is not None:
                 return
             self._setpoint, self._setpoint_fresh = sp, time.monotonic()
+            self._commanding = True
         self._send_setpoint(sp)
 
     def abort(self, reason: str) -> None:
@@ -365,8 +367,8 @@ class Vehicle:
             if self._streaming.is_set():
                 with self._lock:
                     sp, fresh = self._setpoint, self._setpoint_fresh
-                    stale = (self._abort_reason is None and now - fresh > self.command_timeout
-                             and self.in_offboard)
+                    stale = (self._abort_reason is None and self._commanding
+                             and now - fresh > self.command_timeout and self.in_offboard)
                 if stale:
                     self.abort("policy_timeout")
                     with self._lock:
