@@ -3,7 +3,9 @@
 It follows the parts of PX4's offboard behaviour the runner depends on (PX4 user guide,
 "Offboard Mode"): OFFBOARD is refused (MAV_RESULT_TEMPORARILY_REJECTED) unless set-points have
 been arriving (at least 5, the last within 0.5 s); in OFFBOARD, set-points missing for
-``offboard_loss_s`` (PX4's COM_OF_LOSS_T) trigger the failsafe into hold, which is recorded;
+``offboard_loss_s`` (PX4's COM_OF_LOSS_T) trigger the failsafe into hold, which is recorded (``mode_delay_s`` makes an accepted switch out
+of OFFBOARD take effect late, as on a busy autopilot, so a runner that stops streaming on the ACK
+rather than on the HEARTBEAT is caught);
 COMMAND_LONG is acknowledged; PARAM_REQUEST_READ answers MPC_THR_HOVER and THR_MDL_FAC;
 MAV_CMD_REQUEST_MESSAGE(GPS_GLOBAL_ORIGIN) is answered. It streams HEARTBEAT (10 Hz) and
 ODOMETRY (pose LOCAL_NED, velocity BODY_FRD) - or LOCAL_POSITION_NED + ATTITUDE_QUATERNION - at
@@ -48,6 +50,7 @@ class FakePX4:
                  rate_hz: float = 100.0, physics: str = "integrator", sim: Any = None,
                  odometry: bool = True, hover_thrust: float | None = None, thr_mdl_fac: float | None = None,
                  offboard_loss_s: float = 0.5, armed: bool = True, faults: LinkFaults | None = None,
+                 mode_delay_s: float = 0.0,
                  origin: tuple[float, float, float] = (47.397742, 8.545594, 488.0)) -> None:
         self.frame, self.params = frame, params
         self.thrust = ThrustMap.for_params(params, px4_curve=thr_mdl_fac)
@@ -62,6 +65,8 @@ class FakePX4:
             sim.reset(self.x)
         self.odometry = odometry
         self.offboard_loss_s = offboard_loss_s
+        self.mode_delay_s = mode_delay_s          # an accepted switch out of OFFBOARD takes effect this late
+        self._pending: tuple[float, int] | None = None
         self.origin = origin
         self.mode = px4_mode(PX4_MAIN_POSCTL)
         self.armed = armed
@@ -136,7 +141,10 @@ class FakePX4:
                     self.offboard_rejections += 1
                     self._ack(c, mavlink.MAV_RESULT_TEMPORARILY_REJECTED)
                     return
-            self._set_mode(mode)
+            if self.mode_delay_s > 0 and self.in_offboard:
+                self._pending = (now + self.mode_delay_s, mode)
+            else:
+                self._set_mode(mode)
             self._ack(c, mavlink.MAV_RESULT_ACCEPTED)
         elif c == mavlink.MAV_CMD_REQUEST_MESSAGE and int(msg.param1) == mavlink.MAVLINK_MSG_ID_GPS_GLOBAL_ORIGIN:
             self._ack(c, mavlink.MAV_RESULT_ACCEPTED)
@@ -170,6 +178,11 @@ class FakePX4:
 
     def _step(self) -> None:
         with self._lock:
+            if self._pending is not None and time.monotonic() >= self._pending[0]:
+                self._set_mode(self._pending[1])
+                self._pending = None
+            if self.in_offboard and self.setpoints:     # the gap so far, also when no set-point follows it
+                self.max_gap_in_offboard = max(self.max_gap_in_offboard, time.monotonic() - self.setpoints[-1])
             if self.in_offboard and self.setpoints and time.monotonic() - self.setpoints[-1] > self.offboard_loss_s:
                 self.failsafe = True
                 self._set_mode(HOLD_MODE)
