@@ -323,3 +323,15 @@ def test_fly_and_sitl_have_help():
             cli([cmd, "--help"])
         assert exc.value.code == 0
     assert Path(__file__).name.startswith("test_px4")
+
+
+@pytest.mark.parametrize("cmd", ["fly", "sitl"])
+def test_without_the_px4_extra_the_commands_say_what_to_install(cmd):
+    import subprocess
+    import sys
+    code = ("import sys; sys.modules['pymavlink'] = None; from wt_inspect.cli import main; "
+            "sys.exit(main(sys.argv[1:]))")
+    proc = subprocess.run([sys.executable, "-c", code, cmd, "--help"], capture_output=True, text=True, timeout=120)
+    lines = [ln for ln in proc.stderr.splitlines() if not ln.startswith("pybullet build time")]
+    assert proc.returncode == 2 and len(lines) == 1 and "Traceback" not in proc.stderr, proc.stderr
+    assert "pymavlink" in lines[0] and "wt-inspect[px4]" in lines[0]

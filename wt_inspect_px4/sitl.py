@@ -235,8 +235,8 @@ class SitlServer:
         self._seq = 0
         self.received = 0
         self.sent = {"HIL_SENSOR": 0, "HIL_GPS": 0, "HIL_STATE_QUATERNION": 0}
-        self.link = MavlinkLink(endpoint, system_id=1, component_id=mavlink.MAV_COMP_ID_USER1 if hasattr(
-            mavlink, "MAV_COMP_ID_USER1") else 25, handler=self._on_message, tlog=tlog)
+        self.link = MavlinkLink(endpoint, system_id=1, component_id=mavlink.MAV_COMP_ID_USER1,
+                                handler=self._on_message, tlog=tlog, accept_timeout=accept_timeout)
         self._stop = threading.Event()
 
     def _on_message(self, msg: Any) -> None:
