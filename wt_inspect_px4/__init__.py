@@ -10,6 +10,8 @@ the simulator and the policies stay free of any autopilot protocol.
   the airframe's thrust curve (checked against PX4's ``MPC_THR_HOVER``).
 * :mod:`.link` - MAVLink over UDP / TCP with pymavlink's generated common dialect (no hand-packed
   bytes), a raw telemetry log (tlog) of every message in and out, PX4's mode numbers.
+* :mod:`.vehicle` - one PX4 vehicle: its state, COMMAND_LONG with acknowledgements, the set-point
+  stream PX4's offboard mode needs and the way out into hold.
 * :mod:`.safety` - geofence (box + clearance to the turbine mesh), speed limit, stale state.
 * :mod:`.offboard` - ``wt-inspect fly``: the offboard runner (PX4's offboard rules, SET_ATTITUDE_TARGET
   with body rates + thrust, the hold failsafe) writing the evaluation harness's run file.
