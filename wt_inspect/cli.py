@@ -1,7 +1,7 @@
 """The ``wt-inspect`` command line: one entry point, subcommands implemented in their own modules.
 
 This dispatcher sits above every package: it is the one place that names modules of
-``wt_inspect_env``, ``controllers``/``agents`` and ``wt_inspect`` together. Each package keeps the
+``wt_inspect_env``, ``controllers``/``agents``, ``wt_inspect`` and ``wt_inspect_px4`` together. Each package keeps the
 subcommands that need only itself and what lies below it (``wt_inspect_env.commands``: plan and the
 environment benchmarks; ``agents``: train and its benchmark), and the commands that need the
 layers wired together live here (``wt_inspect.evaluation.cli``, ``wt_inspect.commands``). Each
@@ -29,6 +29,9 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "rescore": ("wt_inspect.commands.rescore", "recorded runs' coverage under another camera / coverage rule, no flight"),
     "reproduce": ("wt_inspect.reproduce", "rerun every committed result from results/reproduce.toml; --check: no flight"),
     "study": ("wt_inspect.studies", "the analyses behind some results/ folders (sm-vs-wind, wind-offset, ...)"),
+    # the PX4 bridge: its own package above every other (named here by string, never imported below)
+    "fly": ("wt_inspect_px4.offboard", "fly a policy on a PX4 vehicle over MAVLink (OFFBOARD), scored like evaluate"),
+    "sitl": ("wt_inspect_px4.sitl", "serve our world to PX4 SITL (HIL sensors out, actuator controls in, lock-step)"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
     "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),

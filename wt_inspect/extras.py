@@ -7,7 +7,7 @@ from __future__ import annotations
 # top-level module -> extra of pyproject.toml [project.optional-dependencies]
 OPTIONAL_MODULES: dict[str, str] = {"torch": "rl", "stable_baselines3": "rl", "tensorboard": "rl",
                                     "ray": "ray", "minari": "demos", "h5py": "demos",
-                                    "optuna": "tune"}
+                                    "optuna": "tune", "pymavlink": "px4"}
 
 
 def missing_extra(exc: BaseException) -> str | None:

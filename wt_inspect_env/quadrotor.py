@@ -44,6 +44,10 @@ class QuadrotorParams:
     rotor_spin: tuple[int, int, int, int] = (1, -1, 1, -1)
     prop_radius: float = 0.165           # 13-inch propellers; sizes the collision box [m]
     frame_height: float = 0.20           # collision box height incl. landing gear [m]
+    # Rotor thrust vs motor command u in [0, 1]: f / max_rotor_thrust = (1 - k) u + k u^2, PX4's
+    # THR_MDL_FAC model. Used only where a command leaves the newton world (the PX4 bridge maps
+    # the policy's thrust to PX4's normalised thrust, and its SITL motors through it); 0 = linear.
+    thrust_curve: float = 0.0
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -70,6 +74,8 @@ class QuadrotorParams:
         check_positive("prop_radius", self.prop_radius)
         check_positive("frame_height", self.frame_height)
         check_positive("motor_time_constant", self.motor_time_constant, allow_zero=True)
+        if not 0.0 <= check_positive("thrust_curve", self.thrust_curve, allow_zero=True) <= 1.0:
+            raise ValueError(f"thrust_curve must lie in [0, 1] (PX4's THR_MDL_FAC), got {self.thrust_curve!r}")
         for fname in ("rotor_drag", "body_drag_area"):
             vals = getattr(self, fname)
             if len(vals) != 3:
