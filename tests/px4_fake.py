@@ -30,8 +30,16 @@ from scipy.spatial.transform import Rotation
 from wt_inspect_env.dynamics import quat_to_rotmat_np
 from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams
 from wt_inspect_px4.frames import F_FRD_FLU, SiteFrame
-from wt_inspect_px4.link import (HOLD_MODE, OFFBOARD_MODE, PX4_MAIN_OFFBOARD, LinkFaults, MavlinkLink, mavlink,
-                                 px4_mode, PX4_MAIN_POSCTL)
+from wt_inspect_px4.link import (
+    HOLD_MODE,
+    OFFBOARD_MODE,
+    PX4_MAIN_OFFBOARD,
+    PX4_MAIN_POSCTL,
+    LinkFaults,
+    MavlinkLink,
+    mavlink,
+    px4_mode,
+)
 from wt_inspect_px4.thrust import ThrustMap
 from wt_inspect_px4.vehicle import ATTITUDE_IGNORED
 

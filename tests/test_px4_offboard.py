@@ -20,6 +20,7 @@ import pytest
 pytest.importorskip("pymavlink")
 
 from px4_fake import FakePX4  # noqa: E402
+
 from wt_inspect.evaluation import load_run  # noqa: E402
 from wt_inspect.evaluation.runner import make_env  # noqa: E402
 from wt_inspect.evaluation.scenarios import env_options  # noqa: E402

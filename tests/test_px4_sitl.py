@@ -14,8 +14,7 @@ pytest.importorskip("pymavlink")
 from wt_inspect_px4.frames import Site  # noqa: E402
 from wt_inspect_px4.link import MavlinkLink  # noqa: E402
 from wt_inspect_px4.offboard import _turbine_pose  # noqa: E402
-from wt_inspect_px4.sitl import (HilConfig, HilVehicle, SensorNoise, SitlServer, build_world,  # noqa: E402
-                                 main, px4_parameters)
+from wt_inspect_px4.sitl import HilConfig, HilVehicle, SensorNoise, SitlServer, build_world, main, px4_parameters  # noqa: E402
 from wt_inspect_px4.thrust import inverse_curve  # noqa: E402
 
 
