@@ -34,8 +34,8 @@ import gymnasium as gym
 import numpy as np
 
 import wt_inspect_env
-from wt_inspect_env.env_config import TASKS
-from wt_inspect_env.validation import check_choice, check_positive
+from wt_inspect_env.env_config import TASKS, check_start_noise
+from wt_inspect_env.validation import check_choice, check_finite, check_positive
 
 DATASET_NAMESPACE = "wt-inspect"
 
@@ -71,9 +71,9 @@ class DemoConfig:
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ValueError(f"demo {name} must be a non-negative integer, got {v!r}")
         check_positive("demo time_limit_s", self.time_limit_s)
-        check_positive("demo start_noise", self.start_noise, allow_zero=True)
+        check_start_noise(self.start_noise, "demo start_noise")
         check_positive("demo action_noise", self.action_noise, allow_zero=True)
-        if not 0.0 <= float(self.start_progress) < 1.0:
+        if not 0.0 <= check_finite("demo start_progress", self.start_progress) < 1.0:
             raise ValueError(f"demo start_progress must lie in [0, 1), got {self.start_progress!r}")
 
 
