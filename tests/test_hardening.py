@@ -356,3 +356,20 @@ def test_demos_refuses_an_out_it_cannot_write_before_recording(tmp_path, capsys,
         assert out.read_text() == "x"
     else:
         assert not out.exists()
+
+
+def test_demos_out_that_fails_to_be_created_is_one_line(tmp_path, capsys, monkeypatch):
+    """What a read-only file system (or, for root, nothing else) does: mkdir raises PermissionError."""
+    pytest.importorskip("minari")
+    import pathlib
+
+    from wt_inspect.demonstrations import main as demos_main
+
+    def refuse(self, *a, **kw):
+        raise PermissionError(13, "Permission denied")
+    monkeypatch.setattr(pathlib.Path, "mkdir", refuse)
+    out = tmp_path / "out"
+    assert demos_main(["--out", str(out), "--no-progress", "--config", '{"episodes": 1, "full_missions": 0}']) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--out" in err and "Permission denied" in err
+    assert not out.exists()

@@ -282,6 +282,14 @@ def test_a_model_zip_whose_data_is_empty_is_one_error_naming_the_entry(tmp_path,
     assert err[-1].startswith("wt-inspect train: error: model file") and "'policy_class'" in err[-1]
     assert not any("Traceback" in line for line in err)
     assert not out.exists()
+    from wt_inspect.evaluation.cli import main as evaluate_main
+    out = tmp_path / "eval"
+    for trust in ([], ["--trust-model"]):   # refused before any run starts, with or without trust
+        assert evaluate_main(["--scenario", "surface", "--controllers", f"ppo:{path}", "--winds", "0", "--max-time",
+                              "0.1", "--out", str(out), "--no-progress", "--no-figures", *trust]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "'policy_class'" in err
+        assert not out.exists()
 
 
 def test_a_trusted_legacy_pickle_that_is_not_vecnormalize_is_refused_and_nothing_written(tmp_path):
