@@ -94,6 +94,10 @@ def signal_name(exc: BaseException) -> str:
 def interrupted_message(exc: BaseException, out: Any, what: str = "runs",
                         reports: str = "results.md and results.csv") -> str:
     """The one line an interrupted sweep prints: which signal, where the finished work is, that
-    the reports list it marked incomplete, and how to resume."""
+    the reports list it marked incomplete, and how to resume (or that nothing was written yet,
+    when the signal came before ``out/results.md`` was)."""
+    from pathlib import Path
+    if out is None or not (Path(out) / "results.md").is_file():
+        return f"interrupted ({signal_name(exc)}) before any {what} finished; nothing written"
     return (f"interrupted ({signal_name(exc)}); the finished {what} are kept in {out} and listed in its {reports} "
             f"(marked incomplete) - rerun the same command to resume")
