@@ -41,7 +41,9 @@ def _check(algo: str):
         (reads JSON and weights only; nothing of the model is built)."""
         model = resolve_model_path(path)
         verify_shipped(model)
-        if trust_model:
+        if trust_model:   # SB3's loader will run; still refuse, before any run, a zip that is no model
+            from .safe_load import check_model_data
+            check_model_data(model)
             return
         try:
             from .policy import algo_class, load_sidecar

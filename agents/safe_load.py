@@ -231,8 +231,25 @@ def check_weights_only(zip_path: str | Path) -> None:
                                            f"torch file ({first}); {TRUST_HINT}") from None
 
 
+# Entries of a SB3 zip's ``data`` its loader needs before anything else (the policy to build, the
+# spaces to check an env against): a file without them is no model, whatever else it holds.
+REQUIRED_DATA = ("policy_class", "observation_space", "action_space")
+
+
+def check_model_data(zip_path: str | Path) -> dict[str, Any]:
+    """The zip's ``data`` (as stored), or ValueError naming the file and the first missing entry of
+    :data:`REQUIRED_DATA` (a ``data`` of ``{}`` would otherwise be SB3's bare KeyError)."""
+    data = read_data(zip_path)
+    missing = [k for k in REQUIRED_DATA if k not in data]
+    if missing:
+        raise ValueError(f"model file {str(zip_path)!r}: its data has no {missing[0]!r} entry (a stable-baselines3 "
+                         f"model stores {', '.join(REQUIRED_DATA)}); not a model saved by wt-inspect train")
+    return data
+
+
 def check_safe(cls: type, zip_path: str | Path, doc: Mapping[str, Any]) -> dict[str, Any]:
     """Everything :func:`load_sb3_model` checks before loading; returns the ``custom_objects``."""
+    check_model_data(zip_path)
     objects = rebuild_custom_objects(cls, zip_path, doc)
     check_weights_only(zip_path)
     return objects
@@ -244,11 +261,48 @@ def load_sb3_model(cls: type, zip_path: str | Path, doc: Mapping[str, Any], *, t
     module docstring); with ``trust_model`` SB3's own loader runs (a warning says so)."""
     verify_shipped(zip_path)
     if trust_model:
+        check_model_data(zip_path)
         warnings.warn(f"--trust-model: loading {str(zip_path)!r} with stable-baselines3's pickle-based loader; "
                       "code in the file runs", stacklevel=2)
-        return cls.load(str(zip_path), **load_kwargs)
+        return _sb3_load(cls, zip_path, load_kwargs)
     objects = check_safe(cls, zip_path, doc)
-    return cls.load(str(zip_path), custom_objects=objects, **load_kwargs)
+    return _sb3_load(cls, zip_path, {"custom_objects": objects, **load_kwargs})
+
+
+def _sb3_load(cls: type, zip_path: str | Path, kwargs: Mapping[str, Any]) -> Any:
+    """``cls.load``; a ``data`` entry SB3 expects but the file lacks (KeyError / AttributeError
+    from its set-up) is a ValueError naming the file and the entry."""
+    try:
+        return cls.load(str(zip_path), **kwargs)
+    except (KeyError, AttributeError) as exc:
+        what = exc.args[0] if isinstance(exc, KeyError) and exc.args else str(exc)
+        raise ValueError(f"model file {str(zip_path)!r} is not a loadable {cls.__name__} model: its data lacks or "
+                         f"mangles {what!r}") from None
+
+
+def load_legacy_vecnormalize(path: str | Path, venv: Any) -> Any:
+    """A training ``VecNormalize`` around ``venv`` from an old pickled ``NAME.vecnormalize.pkl``.
+    UNSAFE - unpickling runs code from the file: only behind ``--trust-model``. What SB3's
+    ``VecNormalize.load`` does, plus a ValueError naming the file when the pickle is not
+    VecNormalize statistics (instead of an AttributeError from ``set_venv``)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            obj = pickle.load(fh)   # noqa: S301 - trusted by the caller (--trust-model)
+    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ImportError, IndexError, TypeError,
+            ValueError) as exc:
+        raise ValueError(f"normalisation statistics {str(p)!r} cannot be unpickled: {exc}") from None
+    if not isinstance(obj, VecNormalize):
+        raise ValueError(f"normalisation statistics {str(p)!r} hold a {type(obj).__module__}.{type(obj).__name__}, "
+                         "not VecNormalize statistics")
+    try:
+        obj.set_venv(venv)
+    except (ValueError, AttributeError, KeyError, AssertionError) as exc:   # statistics of another env
+        raise ValueError(f"normalisation statistics {str(p)!r} do not fit this environment: {exc}") from None
+    obj.training = True
+    return obj
 
 
 # ------------------------------------------------------------------ VecNormalize as JSON
@@ -398,6 +452,6 @@ def write_manifest(models_dir: Path | None = None) -> Path:
     return path
 
 
-__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "rebuild_custom_objects", "serialized_entries", "read_data",
+__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "check_model_data", "load_legacy_vecnormalize", "rebuild_custom_objects", "serialized_entries", "read_data",
            "check_weights_only", "save_vecnormalize", "load_vecnormalize", "vecnormalize_path", "verify_shipped",
            "write_manifest", "sha256_file", "sb3_policy_kwargs", "sb3_algo_kwargs", "MODELS_DIR", "TRUST_HINT"]

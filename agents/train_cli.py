@@ -8,6 +8,7 @@ import sys
 from wt_inspect_env.atomic_io import check_out_dir
 from wt_inspect_env.env_config import TASKS
 from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
+from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
 
 from .policy import ALGOS
 
@@ -59,6 +60,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect train") -> int:
+    with interrupts_raise():   # SIGTERM = Ctrl-C: a checkpoint is saved either way
+        return _main(argv, prog)
+
+
+def _main(argv: list[str], prog: str) -> int:
     args = build_parser(prog).parse_args(argv)
     try:   # before any work: an existing file or an uncreatable directory as --out is one line
         check_out_dir(args.out, "--out")
@@ -88,7 +94,7 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     if len(_recipes(args)) > 1:
         print(f"{prog}: error: several --recipe files need --seeds (one run per recipe and seed)", file=sys.stderr)
         return 2
-    from .training import train  # imports torch only once the arguments are valid
+    from .training import TrainingInterrupted, train  # imports torch only once the arguments are valid
     try:
         summary = train(args.algo, args.task, args.timesteps, args.n_envs, args.out, recipe=args.recipe,
                         resume=args.resume, seed=args.seed, max_minutes=args.max_minutes, eval_every=args.eval_every,
@@ -97,6 +103,17 @@ def main(argv: list[str], prog: str = "wt-inspect train") -> int:
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
+    except TrainingInterrupted as exc:
+        how = f"\n{prog}: interrupted ({signal_name(exc)}) after {exc.env_steps} env steps; "
+        if exc.checkpoint is not None:
+            print(how + f"saved the checkpoint {exc.checkpoint} - continue with --resume {exc.checkpoint}",
+                  file=sys.stderr)
+        else:
+            print(how + "nothing saved (the checkpoint could not be written)", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:   # before the model existed
+        print(f"\n{prog}: interrupted ({signal_name(exc)}) before training started; nothing saved", file=sys.stderr)
+        return EXIT_INTERRUPTED
     m = summary["final_evaluation"]["mean"]
     print(f"trained {summary['env_steps_this_call']} steps in {summary['train_wall_time_this_call_s']:.0f} s "
           f"({summary['env_steps_per_s']:.0f} steps/s); total {summary['env_steps']} steps, "

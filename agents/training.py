@@ -41,11 +41,19 @@ import wt_inspect_env
 from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.env_config import TASKS
 from wt_inspect_env.figure_io import check_figure_format
+from wt_inspect_env.interrupts import interrupts_deferred
 from wt_inspect_env.validation import check_choice
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
 from .recipe import Recipe, default_recipe_path, load_recipe
-from .safe_load import LEGACY_VECNORM_SUFFIX, load_sb3_model, load_vecnormalize, sb3_algo_kwargs, sb3_policy_kwargs
+from .safe_load import (
+    LEGACY_VECNORM_SUFFIX,
+    load_legacy_vecnormalize,
+    load_sb3_model,
+    load_vecnormalize,
+    sb3_algo_kwargs,
+    sb3_policy_kwargs,
+)
 from .wrappers import AgentSpec, EpisodeVariants, InspectionAgentEnv, ShapingConfig
 
 TASK_ENV_IDS: dict[str, str] = {task: env_id for env_id, task in wt_inspect_env.ENV_IDS.items()}
@@ -340,6 +348,47 @@ def _positive_int(name: str, value: Any) -> int:
     return int(value)
 
 
+class TrainingInterrupted(KeyboardInterrupt):
+    """``train`` was interrupted (SIGINT / SIGTERM): ``checkpoint`` is the resumable checkpoint
+    saved at ``env_steps`` (None: nothing could be saved), ``signal`` the original interrupt."""
+
+    def __init__(self, interrupt: BaseException, checkpoint: Path | None, env_steps: int) -> None:
+        super().__init__(str(interrupt))
+        self.signum = getattr(interrupt, "signum", 2)
+        self.checkpoint = checkpoint
+        self.env_steps = env_steps
+
+
+def _build_model(cls, algo: str, rec: Recipe, venv, *, resume, ckpt_doc, recipe, trust_model: bool, seed: int,
+                 verbose: int, tb: str, use_norm: bool, norm: Mapping[str, Any], gamma: float, legacy: Path | None):
+    """The model (new, or loaded from ``resume``) and its VecNormalize around ``venv``; writes nothing."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    vecnorm = None
+    if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
+        vecnorm = load_vecnormalize(sidecar_paths(resume)[2], venv)
+        venv = vecnorm
+    elif ckpt_doc is not None and trust_model and legacy is not None and legacy.is_file():
+        vecnorm = load_legacy_vecnormalize(legacy, venv)   # the user trusts this pickle (checked above)
+        venv = vecnorm
+    elif use_norm:
+        vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
+                               clip_obs=float(norm.get("clip_obs", 10.0)),
+                               clip_reward=float(norm.get("clip_reward", 10.0)), gamma=gamma)
+        venv = vecnorm
+    if ckpt_doc is not None:
+        changes = resume_overrides(algo, rec) if recipe is not None else {}
+        model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
+                               device="cpu", tensorboard_log=tb, **changes)
+        # SB3's load does not reseed: without this, the seeds of a fine-tune would share torch's
+        # unseeded stream and no fine-tune would be reproducible.
+        model.set_random_seed(seed)
+    else:
+        model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
+                    policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
+    return model, vecnorm, venv
+
+
 def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
           recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
           max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
@@ -405,44 +454,31 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
                          "must stay the same to resume)")
 
     import torch
-    from stable_baselines3.common.vec_env import VecNormalize
 
     torch.set_num_threads(rec.torch_threads)
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
     cls = algo_class(algo)
+    # Nothing is written into ``out`` until the model is built or loaded: a checkpoint refused while
+    # loading (malformed statistics or model data) leaves no recipe.json behind.
     venv = make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
                         variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
     norm = dict(rec.normalize)
     use_norm = bool(norm.get("obs", True) or norm.get("reward", True))
     gamma = float(rec.algo_kwargs.get("gamma", 0.99))
-    vecnorm = None
-    if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
-        vecnorm = load_vecnormalize(sidecar_paths(resume)[2], venv)
-        venv = vecnorm
-    elif ckpt_doc is not None and trust_model and legacy.is_file():
-        vecnorm = VecNormalize.load(str(legacy), venv)   # the user trusts this pickle (checked above)
-        vecnorm.training = True
-        venv = vecnorm
-    elif use_norm:
-        vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
-                               clip_obs=float(norm.get("clip_obs", 10.0)),
-                               clip_reward=float(norm.get("clip_reward", 10.0)), gamma=gamma)
-        venv = vecnorm
-    tb = str(out / "tb")
+    try:
+        model, vecnorm, venv = _build_model(cls, algo, rec, venv, resume=resume, ckpt_doc=ckpt_doc, recipe=recipe,
+                                            trust_model=trust_model, seed=seed, verbose=verbose, tb=str(out / "tb"),
+                                            use_norm=use_norm, norm=norm, gamma=gamma,
+                                            legacy=legacy if ckpt_doc is not None else None)
+    except BaseException:
+        venv.close()
+        raise
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
     if ckpt_doc is not None:
-        changes = resume_overrides(algo, rec) if recipe is not None else {}
-        model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
-                               device="cpu", tensorboard_log=tb, **changes)
-        # SB3's load does not reseed: without this, the seeds of a fine-tune would share torch's
-        # unseeded stream and no fine-tune would be reproducible.
-        model.set_random_seed(seed)
         env_steps0 = int(ckpt_doc.get("training", {}).get("env_steps", 0))
         wall0 = float(ckpt_doc.get("training", {}).get("wall_time_s", 0.0))
     else:
-        model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
-                    policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
         env_steps0, wall0 = 0, 0.0
     run = TrainingRun(algo=algo, task=task, recipe=rec, out=out, n_envs=n_envs, seed=seed,
                       target_env_steps=env_steps0 + timesteps, env_steps=env_steps0, wall_before=wall0,
@@ -457,6 +493,15 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         eval_seconds = run.eval_time
         final_eval = run.evaluate(model)
         final_path = run.save(model, out / "model", evaluation=final_eval)
+    except KeyboardInterrupt as exc:   # Ctrl-C / SIGTERM: keep what was learnt as a resumable checkpoint
+        callback._on_training_end()    # close the progress bar
+        saved = None
+        with interrupts_deferred(raise_noted=False):
+            try:
+                saved = run.checkpoint(model)
+            except (OSError, ValueError):   # a full disk: say that nothing was saved
+                saved = None
+        raise TrainingInterrupted(exc, saved, run.env_steps) from None
     finally:
         venv.close()
         run.close()

@@ -265,3 +265,54 @@ def test_resume_refuses_an_old_pickled_statistics_file_without_trust(tmp_path):
     legacy.unlink()
     with pytest.raises(ValueError, match="needs the normalisation statistics"):
         train("ppo", "surface", 10, 1, out, resume=path, progress_bar=False)
+
+
+# --------------------------------------------------------------------------- issue 33: malformed files
+def test_a_model_zip_whose_data_is_empty_is_one_error_naming_the_entry(tmp_path, capsys):
+    from agents.train_cli import main as train_main
+    path = _copy_model(tmp_path / "m")
+    _rewrite_zip(path, "data", b"{}")
+    for trust in (False, True):   # SB3's own loader would raise a bare KeyError either way
+        with pytest.raises(ValueError, match=r"model\.zip.*no 'policy_class' entry"):
+            load_sb3_policy("ppo", path, trust_model=trust)
+    out = tmp_path / "train"
+    assert train_main(["--algo", "ppo", "--timesteps", "10", "--out", str(out), "--resume", str(path),
+                       "--no-progress", "--trust-model"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1].startswith("wt-inspect train: error: model file") and "'policy_class'" in err[-1]
+    assert not any("Traceback" in line for line in err)
+    assert not out.exists()
+    from wt_inspect.evaluation.cli import main as evaluate_main
+    out = tmp_path / "eval"
+    for trust in ([], ["--trust-model"]):   # refused before any run starts, with or without trust
+        assert evaluate_main(["--scenario", "surface", "--controllers", f"ppo:{path}", "--winds", "0", "--max-time",
+                              "0.1", "--out", str(out), "--no-progress", "--no-figures", *trust]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "'policy_class'" in err
+        assert not out.exists()
+
+
+def test_a_trusted_legacy_pickle_that_is_not_vecnormalize_is_refused_and_nothing_written(tmp_path):
+    from agents.training import train
+    path = _copy_model(tmp_path / "m")
+    norm = sidecar_paths(path)[2]
+    norm.unlink()
+    legacy = Path(str(path.with_suffix("")) + ".vecnormalize.pkl")
+    legacy.write_bytes(pickle.dumps({"obs_rms": [1, 2, 3]}))
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match=r"vecnormalize\.pkl.*builtins\.dict, not VecNormalize"):
+        train("ppo", "surface", 10, 1, out, resume=path, progress_bar=False, trust_model=True)
+    assert not out.exists()   # refused before recipe.json (or anything) is written
+
+
+def test_a_refused_resume_leaves_no_recipe_behind(tmp_path):
+    from agents.training import train
+    path = _copy_model(tmp_path / "m")
+    norm = sidecar_paths(path)[2]
+    doc = json.loads(norm.read_text())
+    doc["obs_rms"]["var"] = [-1.0] * len(doc["obs_rms"]["var"])   # refused only once the statistics are read
+    norm.write_text(json.dumps(doc))
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match="obs_rms"):
+        train("ppo", "surface", 10, 1, out, resume=path, progress_bar=False)
+    assert not out.exists()

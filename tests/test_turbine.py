@@ -235,6 +235,23 @@ def test_units_up_axis_and_ground(turb, tmp_path):
         load_turbine_mesh(tmp_path / "t.glb", up_axis="-z")
 
 
+def test_an_implausibly_big_mesh_is_refused_before_planning_and_the_unit_suggested(turb, tmp_path):
+    """Issue 33: the project's own export in millimetres, loaded without ``unit``, planned for
+    minutes and then failed on a 118 km transit; a scale of 1e30 failed deep in numpy. Both are
+    now one line naming the file, the unit and the size, before any work."""
+    from wt_inspect_env.turbine import MAX_MESH_EXTENT
+    _write(turb.mesh.triangles * 1000.0, tmp_path / "mm.stl")
+    with pytest.raises(ValueError, match=r"mm\.stl.*m across with unit 'm'.*unit=\"mm\""):
+        load_turbine_mesh(tmp_path / "mm.stl")
+    assert load_turbine_mesh(tmp_path / "mm.stl", unit="mm").n_blade_triangles > 0
+    path = turb.export(tmp_path / "t.stl")
+    with pytest.raises(ValueError, match=rf"unit 1e\+30, more than the {MAX_MESH_EXTENT:g} m.*unit=\"m\""):
+        load_turbine_mesh(path, unit=1e30)
+    import gymnasium as gym
+    with pytest.raises(ValueError, match=r"mm\.stl.*unit=\"mm\""):
+        gym.make("WindTurbineInspection-v0", turbine_mesh=str(tmp_path / "mm.stl"))
+
+
 def test_unrecognisable_parts_say_what_was_found_and_what_to_give(turb, tmp_path):
     # blades bridged at the root into one rotor part (as a CAD export with the hub fused would be)
     roots = [turb.blade_vertices[turb.triangle_blade == k].reshape(-1, 3) for k in range(3)]

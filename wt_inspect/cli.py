@@ -65,9 +65,14 @@ def _usage() -> str:
 
 def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
     module_name, _ = table[name]
+    from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
     try:   # the import and the run: a subcommand may import an optional dependency lazily
-        module = importlib.import_module(module_name)
-        return int(module.main(argv, prog=prog) or 0)
+        with interrupts_raise():   # SIGTERM = Ctrl-C for every command, in every phase
+            module = importlib.import_module(module_name)
+            return int(module.main(argv, prog=prog) or 0)
+    except KeyboardInterrupt as exc:   # a command that has no report to write (or was not yet running)
+        print(f"\n{prog}: interrupted ({signal_name(exc)})", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except ModuleNotFoundError as exc:
         msg = missing_extra(exc)
         if msg is None:

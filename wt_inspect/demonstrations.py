@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -34,8 +35,9 @@ import gymnasium as gym
 import numpy as np
 
 import wt_inspect_env
-from wt_inspect_env.env_config import TASKS
-from wt_inspect_env.validation import check_choice, check_positive
+from wt_inspect_env.atomic_io import check_out_dir
+from wt_inspect_env.env_config import TASKS, check_start_noise
+from wt_inspect_env.validation import check_choice, check_finite, check_positive
 
 DATASET_NAMESPACE = "wt-inspect"
 
@@ -71,10 +73,35 @@ class DemoConfig:
             if isinstance(v, bool) or not isinstance(v, int) or v < 0:
                 raise ValueError(f"demo {name} must be a non-negative integer, got {v!r}")
         check_positive("demo time_limit_s", self.time_limit_s)
-        check_positive("demo start_noise", self.start_noise, allow_zero=True)
+        check_start_noise(self.start_noise, "demo start_noise")
         check_positive("demo action_noise", self.action_noise, allow_zero=True)
-        if not 0.0 <= float(self.start_progress) < 1.0:
+        if not 0.0 <= check_finite("demo start_progress", self.start_progress) < 1.0:
             raise ValueError(f"demo start_progress must lie in [0, 1), got {self.start_progress!r}")
+
+
+# A dataset name: Minari's ``dataset_name-v<version>`` without a namespace of its own (the
+# namespace is DATASET_NAMESPACE) - letters, digits, ``-`` and ``_``, so it is one folder inside
+# ``--out`` (no ``/``, no ``..``) and Minari accepts the id after the recording, not only before.
+_DATASET_NAME = re.compile(r"[A-Za-z0-9_][-\w]*-v\d+", re.ASCII)
+
+
+def check_dataset_name(name: Any) -> str:
+    """``name`` if it is a valid dataset name (see :data:`_DATASET_NAME`), checked also by Minari's
+    own id parser when Minari is installed; otherwise a one-line ValueError naming ``--name``."""
+    if not isinstance(name, str) or not _DATASET_NAME.fullmatch(name):
+        raise ValueError(f"--name must be a dataset name of letters, digits, '-' and '_' ending in a version "
+                         f"such as '-v0' (one folder inside --out: no '/' or '..'), got {name!r}")
+    try:
+        from minari.dataset.minari_dataset import parse_dataset_id
+    except ImportError:   # checked again by record_demonstrations, which needs Minari
+        return name
+    try:
+        namespace, _, _ = parse_dataset_id(f"{DATASET_NAMESPACE}/{name}")
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"--name {name!r} is not a valid Minari dataset name: {exc}") from None
+    if namespace != DATASET_NAMESPACE:   # pragma: no cover - excluded by the pattern above
+        raise ValueError(f"--name {name!r} must not contain a namespace")
+    return name
 
 
 def _episode_plan(cfg: DemoConfig) -> list[dict[str, Any]]:
@@ -99,12 +126,19 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
     from .evaluation.registry import resolve
 
     env_id = {task: eid for eid, task in wt_inspect_env.ENV_IDS.items()}[cfg.task]
-    out = Path(out)
+    # Everything that can be refused is refused before the first episode flies.
+    check_dataset_name(name)
+    out = check_out_dir(out, "--out")
     dataset_id = f"{DATASET_NAMESPACE}/{name}"
     target = out / DATASET_NAMESPACE / name
     if target.exists():
         raise ValueError(f"dataset {str(target)!r} exists already; choose another --name or remove it")
-    out.mkdir(parents=True, exist_ok=True)
+    if (out / DATASET_NAMESPACE).exists() and not (out / DATASET_NAMESPACE).is_dir():
+        raise ValueError(f"--out {str(out)!r}: {str(out / DATASET_NAMESPACE)!r} exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ValueError(f"--out {str(out)!r} cannot be created: {exc.strerror or exc}") from None
     tmp_root = Path(tempfile.mkdtemp(prefix=".minari-", dir=out))
     old_path = os.environ.get("MINARI_DATASETS_PATH")
     os.environ["MINARI_DATASETS_PATH"] = str(tmp_root)
@@ -196,6 +230,8 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
         if unknown:
             raise ValueError(f"unknown demo config field(s) {unknown}; valid: {sorted(DemoConfig.__dataclass_fields__)}")
         from .evaluation.registry import check_controller
+        check_dataset_name(args.name)   # before anything is imported, built or recorded
+        check_out_dir(args.out, "--out")
         cfg = DemoConfig(**fields)
         check_controller(cfg.expert)
         summary = record_demonstrations(cfg, args.out, args.name, env, progress=not args.no_progress)
@@ -203,7 +239,10 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
         print(f"{prog}: --config/--env is not valid JSON: {exc}", file=sys.stderr)
         return 2
     except ValueError as exc:
-        print(f"{prog}: {exc}", file=sys.stderr)
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:   # the disk filled or went read-only while recording
+        print(f"{prog}: error: cannot write the dataset into {args.out!r}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     mean = {k: float(np.mean([e["metrics"][k] for e in summary["episodes"]])) for k in ("coverage", "safety_sm")}
     print(f"recorded {summary['total_episodes']} episodes, {summary['steps']} steps into {summary['dataset']} "

@@ -81,6 +81,10 @@ class BladeShape:
             return value
         if isinstance(value, Mapping):
             check_unknown_options("blade", value.keys(), ["span", "chord", "twist_deg", "thickness", "pitch_axis"])
+            missing = [k for k in ("span", "chord", "twist_deg", "thickness") if k not in value]
+            if missing:
+                raise ValueError(f"blade {missing[0]} is missing: a blade shape needs span, chord, twist_deg and "
+                                 f"thickness tables of one value per span station (got {sorted(value)})")
             return cls(**dict(value))
         raise ValueError(f"blade must be a dict with span, chord, twist_deg and thickness, got {value!r}")
 

@@ -48,7 +48,7 @@ from .sim import RAY_MASK_WITHOUT_DRONE, QuadrotorSim, SimConfig
 from .spaces import OBS_SHAPES, ActionScaling
 from .step_terms import observations, reward_terms
 from .texture import SpanTexture
-from .validation import check_array
+from .validation import check_actions, check_array
 from .wind import WindField, make_wind
 
 
@@ -215,7 +215,7 @@ class WindTurbineInspectionEnv(gym.Env):
     def step(self, action):
         if self._sample is None:
             raise RuntimeError("call reset() before step()")
-        a = check_array("action", action, (4,))
+        a = check_actions(action)    # shared with the vector env: the same input is refused alike
         command = self.scaling.to_command(a)
         if self.randomization is not None and self.randomization.latency_steps:
             self._commands.append(command)      # command latency: the one from latency_steps ago

@@ -11,6 +11,8 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
+import numpy as np
+
 from .camera import CameraConfig
 from .flight_core import INTEGRATORS
 from .quadrotor import QuadrotorParams, get_preset
@@ -64,15 +66,43 @@ class RewardConfig:
             check_positive(f"reward {f.name}", getattr(self, f.name), allow_zero=f.name != "distance_scale")
 
 
+# Physical bounds of the start options [m]. A start more than 1 km off its stand-off pose is not
+# the start of an inspection flight (the largest turbine a TurbineSpec allows is 500 m tall), and
+# without a bound a finite 1e308 overflows to infinite positions and an episode that never ends.
+# A start-noise standard deviation of 100 m already scatters starts over ~400 m.
+MAX_START_OFFSET = 1000.0
+MAX_START_NOISE = 100.0
+# Far plane of the rendered images [m]: the depth buffer is float32, so beyond ~1 km (10^4 x the
+# 0.1 m near plane) the depth of distant surfaces is rounding noise (NaN and negative values from
+# about 1e6 m); the camera inspects from a few metres.
+MAX_DEPTH_FAR = 1000.0
+
+
 def check_start_offset(value: Any, name: str = "start_offset") -> tuple[float, float, float]:
-    """A start offset [m] as three finite floats; a one-line ValueError naming ``name`` otherwise.
+    """A start offset [m] as three finite floats at most :data:`MAX_START_OFFSET` long; a one-line
+    ValueError naming ``name`` and the value otherwise.
 
     The one validation of the option, shared by :class:`EnvConfig`, the vector env and per-reset
     options, so every path refuses the same input with the same message."""
     if isinstance(value, (str, bytes)) or value is None:
         raise ValueError(f"{name} must be 3 finite numbers [m], got {value!r}")
     arr = check_array(name, value, (3,))
+    big = float(np.max(np.abs(arr)))
+    length = big if big > MAX_START_OFFSET else float(np.linalg.norm(arr))   # no overflow in the norm
+    if not length <= MAX_START_OFFSET:
+        raise ValueError(f"{name} must be at most {MAX_START_OFFSET:g} m long (a start farther from the path is not "
+                         f"an inspection flight), got {value!r} ({length:.4g} m)")
     return (float(arr[0]), float(arr[1]), float(arr[2]))
+
+
+def check_start_noise(value: Any, name: str = "start_noise") -> float:
+    """A start-noise standard deviation [m] in [0, :data:`MAX_START_NOISE`] (shared by every entry
+    point, like :func:`check_start_offset`)."""
+    v = check_positive(name, value, allow_zero=True)
+    if v > MAX_START_NOISE:
+        raise ValueError(f"{name} must be at most {MAX_START_NOISE:g} m (a standard deviation; starts then scatter "
+                         f"over hundreds of metres already), got {value!r}")
+    return v
 
 
 @dataclass(frozen=True)
@@ -218,7 +248,7 @@ class EnvConfig:
             raise ValueError(f"camera_hz must not exceed ctrl_hz ({self.ctrl_hz}), got {self.camera_hz!r}")
         if self.time_limit_s is not None:
             check_positive("time_limit_s", self.time_limit_s)
-        check_positive("start_noise", self.start_noise, allow_zero=True)
+        check_start_noise(self.start_noise)
         put("start_offset", check_start_offset(self.start_offset))
         check_positive("start_progress", self.start_progress, allow_zero=True)
         if self.start_progress >= 1.0:
@@ -252,6 +282,9 @@ class EnvConfig:
         check_positive("depth_far", self.depth_far)
         if self.depth_far <= 0.1:
             raise ValueError(f"depth_far must exceed the 0.1 m near plane, got {self.depth_far!r}")
+        if self.depth_far > MAX_DEPTH_FAR:
+            raise ValueError(f"depth_far must be at most {MAX_DEPTH_FAR:g} m (the float32 depth buffer has no "
+                             f"resolution left beyond it), got {self.depth_far!r}")
 
     def for_episode(self, options: Mapping[str, Any] | None) -> "EnvConfig":
         """This configuration with one episode's ``reset(options=...)`` applied, validated as the

@@ -34,6 +34,10 @@ from .quadrotor import QuadrotorParams
 from .validation import check_finite, coerce_config
 
 Range = tuple[float, float]
+# Upper bound of ``latency_steps``: 1000 control steps are 10 s at the default 100 Hz - a command
+# link slower than that is no control loop - and each step of latency is a queued command
+# (10**9 would exhaust memory at the first reset).
+MAX_LATENCY_STEPS = 1000
 
 SCALE_FIELDS = ("mass", "inertia", "drag", "thrust", "torque_coeff", "motor_time_constant")
 NOISE_FIELDS = ("position_noise", "velocity_noise", "attitude_noise", "rate_noise")
@@ -58,6 +62,8 @@ def _check_range(name: str, value: Any, *, positive: bool, integer: bool = False
         raise ValueError(f"{label} must be {kind}, got {value!r}")
     if hi < lo:
         raise ValueError(f"{label} must have low <= high, got {value!r}")
+    if integer and hi > MAX_LATENCY_STEPS:
+        raise ValueError(f"{label} must be at most {MAX_LATENCY_STEPS} control steps, got {value!r}")
     return (lo, hi)
 
 

@@ -45,7 +45,10 @@ def metric_depth(buffer: np.ndarray, far: float, near: float = NEAR) -> np.ndarr
     """Distance along the optical axis [m] from an OpenGL depth buffer in [0, 1] (``far`` where
     nothing was hit)."""
     b = np.asarray(buffer, dtype=np.float64)
-    return (far * near / (far - (far - near) * b)).astype(np.float32)
+    den = far - (far - near) * b
+    ok = np.isfinite(den) & (den > 0)   # a rounded buffer value at or past the far plane: far
+    d = np.where(ok, far * near / np.where(ok, den, 1.0), far)
+    return np.clip(d, 0.0, far).astype(np.float32)   # inside the observation space's [0, far]
 
 
 def in_frustum(centers: np.ndarray, radii: np.ndarray, origin: np.ndarray, R: np.ndarray, tan_x: float,

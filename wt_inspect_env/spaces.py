@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .quadrotor import QuadrotorParams, hover_thrust
-from .validation import check_array, check_field_types, check_positive
+from .validation import check_actions, check_array, check_field_types, check_positive
 
 OBS_KEYS: tuple[str, ...] = (
     "position", "velocity_body", "quaternion", "body_rates",
@@ -86,9 +86,7 @@ class ActionScaling:
     def to_command(self, action) -> np.ndarray:
         """Normalised action in [-1, 1]^4 -> physical command [p, q, r, T]. Rejects NaN/shape;
         values outside [-1, 1] are an error, not silently clipped."""
-        a = check_array("action", action, (4,))
-        if np.any(np.abs(a) > 1.0 + 1e-6):
-            raise ValueError(f"action must lie in [-1, 1]^4, got {np.array2string(a)}")
+        a = check_actions(action)
         lo, hi = self.lower, self.upper
         return lo + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo)
 

@@ -66,6 +66,11 @@ MAX_TRIANGLES = 1_000_000     # a mesh step that would need more triangles is re
 # bound turns such a request into a one-line error naming the field.
 MAX_BLADE_LENGTH = 200.0
 MAX_TOWER_HEIGHT = 300.0
+# Bounds of a loaded mesh: its largest extent [m] after the unit is applied (twice the tallest
+# turbine a TurbineSpec may describe, MAX_TOWER_HEIGHT + MAX_BLADE_LENGTH) and its triangle count
+# (as MAX_TRIANGLES for generated ones). Beyond them planning grows for minutes and then fails
+# on a transit of kilometres - most often a file in millimetres read as metres.
+MAX_MESH_EXTENT = 2.0 * (MAX_TOWER_HEIGHT + MAX_BLADE_LENGTH)
 N_BLADES = 3
 CYLINDER_SECTIONS = 24        # facets around the tower and hub cylinders
 FACE_NAMES = ("front", "back", "edge+", "edge-")
@@ -794,6 +799,21 @@ def _find_blades(parts: list[MeshPart], name: str) -> tuple[list[MeshPart], np.n
                                  "do not meet at a rotor centre"))
 
 
+def check_mesh_extent(opts: "MeshLoadOptions", raw_extent: float) -> None:
+    """ValueError naming the file, the ``unit`` and the size unless the mesh (largest extent
+    ``raw_extent`` in file units) is at most :data:`MAX_MESH_EXTENT` across in metres; the message
+    suggests the units that would make it a turbine-sized mesh (a millimetre file read as metres
+    is the common case)."""
+    extent = raw_extent * opts.scale
+    if extent <= MAX_MESH_EXTENT:
+        return
+    fits = [u for u, f in UNITS.items() if 0.1 <= raw_extent * f <= MAX_MESH_EXTENT and f < opts.scale]
+    hint = (f"; if the file is in {' or '.join(fits)}, give unit=" + " / ".join(f'"{u}"' for u in fits)
+            if fits else "; give the unit the file is in (unit=\"mm\", \"cm\", ... or a factor to metres)")
+    raise ValueError(f"path {opts.path!r}: the mesh is {extent:.4g} m across with unit {opts.unit!r}, more than the "
+                     f"{MAX_MESH_EXTENT:g} m of any turbine{hint}")
+
+
 def load_turbine_mesh(path: str | Path | MeshLoadOptions | Mapping[str, Any], **options: Any) -> TurbineMesh:
     """Read a turbine from an STL/OBJ/PLY/GLB file (through trimesh; ``options``: the fields of
     :class:`MeshLoadOptions`).
@@ -829,9 +849,15 @@ def load_turbine_mesh(path: str | Path | MeshLoadOptions | Mapping[str, Any], **
     n = len(tris)
     if n == 0:
         raise ValueError(f"path {opts.path!r} holds no triangles")
+    if n > MAX_TRIANGLES:
+        raise ValueError(f"path {opts.path!r} has {n:,} triangles, more than {MAX_TRIANGLES:,}; decimate the mesh "
+                         "(the planner and the coverage test work per triangle)")
+    raw_extent = float(np.max(np.ptp(tris.reshape(-1, 3), axis=0))) if np.all(np.isfinite(tris)) else math.inf
     tris = (tris * opts.scale) @ opts.up_rotation(fmt).T
     if not np.all(np.isfinite(tris)):
-        raise ValueError(f"path {opts.path!r} has non-finite vertex coordinates")
+        raise ValueError(f"path {opts.path!r} has non-finite vertex coordinates"
+                         + (f" with unit {opts.unit!r}" if math.isfinite(raw_extent) else ""))
+    check_mesh_extent(opts, raw_extent)
     zmin = float(tris[..., 2].min())
     if opts.place_on_ground:
         tris[..., 2] -= zmin

@@ -57,12 +57,40 @@ def check_array(name: str, value: Any, shape: tuple[int | None, ...] | None = No
     """Return ``value`` as a finite float64 array of the given shape (``None`` = any length).
     Complex, text and bool arrays are refused rather than cast (a cast drops the imaginary part
     or parses text)."""
+    arr = real_array(name, value, shape)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {np.array2string(arr, threshold=12)}")
+    return arr
+
+
+ACTION_TOLERANCE = 1e-6   # |a| up to 1 + this is inside the box (float32 rounding of a clipped action)
+
+
+def check_actions(value: Any, shape: tuple[int, ...] = (4,), name: str = "action") -> np.ndarray:
+    """Normalised action(s) as a float64 array of ``shape`` - ``(4,)`` for the single env,
+    ``(n, 4)`` for the vector env - each entry finite and in [-1, 1]; otherwise a one-line
+    ValueError naming ``name`` (and, for a batch, the first bad row). The one validation of actions,
+    so both envs refuse the same input (text, complex, bool, ragged, NaN, out of the box) alike."""
+    a = real_array(name, value, shape)
+    for bad, must in ((~np.isfinite(a), "be finite"), (np.abs(a) > 1.0 + ACTION_TOLERANCE, "lie in [-1, 1]")):
+        if bad.any():
+            if a.ndim == 2:
+                row = int(np.flatnonzero(bad.any(axis=1))[0])
+                raise ValueError(f"{name} must {must}, got {name}[{row}] = {a[row].tolist()}")
+            box = "^4" if must != "be finite" and a.shape == (4,) else ""
+            raise ValueError(f"{name} must {must}{box}, got {np.array2string(a)}")
+    return a
+
+
+def real_array(name: str, value: Any, shape: tuple[int | None, ...] | None = None) -> np.ndarray:
+    """:func:`check_array` without the finiteness check: ``value`` as a float64 array of ``shape``,
+    text, bool and complex entries (also inside an object array) refused."""
     try:
         raw = value if isinstance(value, np.ndarray) else np.asarray(value)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a numeric array, got {value!r}") from None
     if raw.dtype.kind in "cbUSO" and not (raw.dtype.kind == "O" and _all_real(raw)):
-        raise ValueError(f"{name} must be a real numeric array, got {value!r}")
+        raise ValueError(f"{name} must be a real numeric array, got {_one_line(value)} (dtype {raw.dtype})")
     try:
         arr = np.asarray(raw, dtype=np.float64)
     except (TypeError, ValueError):
@@ -72,8 +100,6 @@ def check_array(name: str, value: Any, shape: tuple[int | None, ...] | None = No
         if not ok:
             want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
             raise ValueError(f"{name} must have shape {want}, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} must be finite, got {np.array2string(arr, threshold=12)}")
     return arr
 
 
@@ -90,6 +116,11 @@ def check_unknown_options(name: str, given: Iterable[str], known: Iterable[str])
     unknown = sorted(set(given) - set(known))
     if unknown:
         raise ValueError(f"unknown {name} option(s) {unknown}; valid: {sorted(set(known))}")
+
+
+def _one_line(value: Any) -> str:
+    """``repr(value)`` on one line (numpy prints a 2-D array over several)."""
+    return " ".join(repr(value).split())
 
 
 def _all_real(arr: np.ndarray) -> bool:

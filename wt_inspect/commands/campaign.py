@@ -27,6 +27,7 @@ found), 2 for bad arguments or an unwritable ``--out``, 130 when interrupted.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import json
@@ -42,11 +43,12 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_deferred, interrupts_raise
 from wt_inspect_env.wind import MAX_WIND_SPEED
 
-from ..evaluation import OutputDirError, prepare_out_dir, registry
+from ..evaluation import OutputDirError, prepare_out_dir, registry, resume_runs
 from ..evaluation.backends import BACKENDS, check_jobs, run_specs
-from ..evaluation.runner import RunResult, RunSpec, fly, load_run, make_env, make_spec, save_run
+from ..evaluation.runner import RunResult, RunSpec, fly, make_env, make_spec, save_run
 
 SCENARIO = "campaign"
 # [lo, hi] of the drawn turbine dimensions [m]: around the paper's V100 (tower 95 m, blades
@@ -59,6 +61,11 @@ MAX_DIRECTION_DEG = 45.0   # wind direction: within this of the rotor axis (the 
 # direction is redrawn (same distance) from a generator seeded by the episode's seed.
 START_CLEARANCE_RATIO = 3.0 / 7.0
 MAX_START_REDRAWS = 100
+# Upper bound of --episodes: every episode's draw and run spec is made before the first flies
+# (so a campaign resumes and its report knows what is missing), a few kB each. 10 000 episodes
+# are weeks of flight on a workstation, far beyond the README's 200; a larger number is a typo
+# (10**12 would grow memory for hours before the first episode).
+MAX_EPISODES = 10_000
 RSS_WARMUP_EPISODES = 20   # a worker's first episodes compile solvers and fill caches: memory grows, then holds
 COLUMNS = ("episode", "seed", "wind", "wind_direction_deg", "tower_height", "blade_length", "blade_width",
            "rotor_azimuth_deg", "start_offset_m", "start_redraws", "termination", "crashed", "exception", "non_finite",
@@ -85,6 +92,10 @@ class CampaignConfig:
             lo = 0 if name == "seed" else 1
             if isinstance(v, bool) or not isinstance(v, int) or v < lo:
                 raise ValueError(f"{name} must be an integer >= {lo}, got {v!r}")
+        if self.episodes > MAX_EPISODES:
+            raise ValueError(f"episodes must be at most {MAX_EPISODES:,} (every draw is planned before the first "
+                             f"episode flies; split a larger study into campaigns with other --seed), "
+                             f"got {self.episodes!r}")
         for name, hi in (("max_wind", MAX_WIND_SPEED), ("max_offset", 1000.0)):
             v = getattr(self, name)
             if isinstance(v, (bool, str)) or not isinstance(v, (int, float)) or not 0 <= v <= hi:
@@ -259,10 +270,17 @@ def summarise(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
 
 
 def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Mapping[str, Any]],
-              command: str, wall: float, wall_total: float | None = None) -> str:
+              command: str, wall: float, wall_total: float | None = None, n_planned: int | None = None) -> str:
     s = summary
-    lines = [f"# Robustness campaign: {cfg.controller}, {s['episodes']} episodes", "",
-             f"`{command}`" if command else "", "",
+    n_planned = s["episodes"] if n_planned is None else n_planned
+    count = (f"{s['episodes']} episodes" if s["episodes"] >= n_planned
+             else f"{s['episodes']} of {n_planned} episodes, incomplete")
+    lines = [f"# Robustness campaign: {cfg.controller}, {count}", "",
+             f"`{command}`" if command else "", ""]
+    if s["episodes"] < n_planned:
+        lines += [f"**Incomplete: {s['episodes']} of {n_planned} episodes finished** (rerun the same command to "
+                  "resume).", ""]
+    lines += [
              f"Task `{cfg.task}`, master seed {cfg.seed}; turbines tower {SIZE_RANGES['tower_height']} m, blades "
              f"{SIZE_RANGES['blade_length']} x {SIZE_RANGES['blade_width']} m, rotor azimuth [0, 120) deg with the "
              f"planner's rotor turns; Dryden wind, mean [0, {cfg.max_wind:g}] m/s within {MAX_DIRECTION_DEG:g} deg "
@@ -341,20 +359,19 @@ def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local"
     for d in draws:
         specs.append(make_spec(SCENARIO, cfg.controller, d["wind"], d["seed"], episode_options(d, cfg.task),
                                cfg.max_time, cfg.record_every))
-    by_file = {s.filename: d for s, d in zip(specs, draws)}
     out_dir = prepare_out_dir(out)
+    with interrupts_raise():   # SIGTERM = Ctrl-C in every phase, whatever the backend and jobs
+        return _fly_campaign(cfg, out_dir, specs, draws, t0=t0, backend=backend, jobs=jobs, address=address,
+                             progress=progress, figure=figure, command=command)
+
+
+def _fly_campaign(cfg: CampaignConfig, out_dir: Path, specs: list[RunSpec], draws: list[dict[str, Any]], *,
+                  t0: float, backend: str, jobs: int, address: str | None, progress: bool, figure: bool,
+                  command: str) -> dict[str, Any]:
+    by_file = {s.filename: d for s, d in zip(specs, draws)}
     earlier_wall = _earlier_wall_time(out_dir / "campaign.json", cfg)
-    results: dict[str, RunResult] = {}
-    todo = []
-    for s in specs:
-        path = out_dir / "runs" / s.filename
-        if path.exists():
-            try:
-                results[s.filename] = load_run(path, arrays=False)
-                continue
-            except ValueError:
-                pass
-        todo.append(s)
+    results, todo = resume_runs(out_dir / "runs", specs,
+                                warn=lambda m: print(f"warning: {m}", file=sys.stderr))
 
     def finished(res: RunResult) -> None:
         if res.arrays:
@@ -369,28 +386,40 @@ def run_campaign(cfg: CampaignConfig, out: str | Path, *, backend: str = "local"
     try:
         if todo:
             run_specs(backend, todo, finished, jobs=jobs, address=address, progress=progress, task=run_episode)
-    finally:
-        rows = [_row(by_file[s.filename], results[s.filename]) for s in specs if s.filename in results]
-        summary = summarise(rows)
-        wall = time.perf_counter() - t0
-        doc = {"format": "wt-inspect-campaign/1", "config": cfg.__dict__, "command": command,
-               "complete": len(rows) == len(specs), "wall_time_s": wall,
-               "wall_time_total_s": earlier_wall + wall, "summary": summary,
-               "episodes": rows, "draws": draws}
-        try:
-            buf = io.StringIO()
-            w = csv.DictWriter(buf, fieldnames=COLUMNS)
-            w.writeheader()
-            w.writerows(rows)
-            write_text_atomic(out_dir / "episodes.csv", buf.getvalue())
-            write_text_atomic(out_dir / "campaign.json", json.dumps(doc, indent=1, default=float) + "\n")
-            write_text_atomic(out_dir / "results.md", _markdown(cfg, summary, rows, command, wall,
-                                                                earlier_wall + wall))
-            if figure and rows:
-                doc["figure"] = str(_figure(rows, out_dir / "campaign.png"))
-        except OSError as exc:
-            raise OutputDirError(f"cannot write the campaign results to {str(out_dir)!r}: "
-                                 f"{exc.strerror or exc}") from None
+    except BaseException:   # interrupted (or failed): the report of the finished episodes, uncut by a second signal
+        with interrupts_deferred(raise_noted=False), contextlib.suppress(OSError, ValueError):
+            _report(cfg, out_dir, specs, draws, by_file, results, t0=t0, earlier_wall=earlier_wall, figure=False,
+                    command=command)
+        raise
+    return _report(cfg, out_dir, specs, draws, by_file, results, t0=t0, earlier_wall=earlier_wall, figure=figure,
+                   command=command)
+
+
+def _report(cfg: CampaignConfig, out_dir: Path, specs: list[RunSpec], draws: list[dict[str, Any]],
+            by_file: Mapping[str, Any], results: Mapping[str, RunResult], *, t0: float, earlier_wall: float,
+            figure: bool, command: str) -> dict[str, Any]:
+    """episodes.csv, campaign.json, results.md (all atomic) and campaign.png of the finished episodes."""
+    rows = [_row(by_file[s.filename], results[s.filename]) for s in specs if s.filename in results]
+    summary = summarise(rows)
+    wall = time.perf_counter() - t0
+    doc = {"format": "wt-inspect-campaign/1", "config": cfg.__dict__, "command": command,
+           "complete": len(rows) == len(specs), "episodes_planned": len(specs), "wall_time_s": wall,
+           "wall_time_total_s": earlier_wall + wall, "summary": summary,
+           "episodes": rows, "draws": draws}
+    try:
+        buf = io.StringIO()
+        w = csv.DictWriter(buf, fieldnames=COLUMNS)
+        w.writeheader()
+        w.writerows(rows)
+        write_text_atomic(out_dir / "episodes.csv", buf.getvalue())
+        write_text_atomic(out_dir / "campaign.json", json.dumps(doc, indent=1, default=float) + "\n")
+        write_text_atomic(out_dir / "results.md", _markdown(cfg, summary, rows, command, wall,
+                                                            earlier_wall + wall, n_planned=len(specs)))
+        if figure and rows:
+            doc["figure"] = str(_figure(rows, out_dir / "campaign.png"))
+    except OSError as exc:
+        raise OutputDirError(f"cannot write the campaign results to {str(out_dir)!r}: "
+                             f"{exc.strerror or exc}") from None
     return doc
 
 
@@ -430,6 +459,11 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect campaign") -> int:
+    with interrupts_raise():   # SIGTERM = Ctrl-C from the start, whatever --jobs
+        return _main(argv, prog)
+
+
+def _main(argv: list[str], prog: str) -> int:
     args = build_parser(prog).parse_args(argv)
     from ..evaluation import command_line
     backend = "ray" if args.ray else args.backend
@@ -443,10 +477,10 @@ def main(argv: list[str], prog: str = "wt-inspect campaign") -> int:
     except ValueError as exc:   # OutputDirError included
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"\n{prog}: interrupted; finished episodes are kept in {args.out} - rerun the same command to resume",
+    except KeyboardInterrupt as exc:
+        print(f"\n{prog}: {interrupted_message(exc, args.out, 'episodes', 'results.md, episodes.csv and campaign.json')}",
               file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
     s = doc["summary"]
     print(f"{s['episodes']} episodes in {doc['wall_time_s']:.0f} s: {s['exceptions']} exceptions, "
           f"{s['non_finite_states']} non-finite states, {s['crashes']} crashes, {s['episodes_with_collisions']} with "

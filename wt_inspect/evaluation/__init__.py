@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
 from wt_inspect_env.figure_io import check_figure_format
+from wt_inspect_env.interrupts import interrupts_deferred, interrupts_raise
 from wt_inspect_env.ray_session import check_ray_address, import_ray
 
 from . import registry
@@ -221,19 +222,58 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         if address:
             check_ray_address(address)
     out_dir = prepare_out_dir(out)
-    _remove_stale_temporaries(out_dir / "runs")
+    with interrupts_raise():   # SIGTERM as Ctrl-C in every phase below, whatever the backend and jobs
+        return _sweep(out_dir, specs, t0=t0, scenario=scenario, backend=backend, jobs=jobs, address=address,
+                      wind_type=wind_type, turbine=turbine, drone=drone, env_overrides=env_overrides,
+                      factories=factories, figures=figures, figure_format=figure_format, progress=progress,
+                      rerun=rerun, command=command, on_result=on_result)
 
+
+def resume_runs(runs_dir: Path, specs: Sequence[RunSpec], *, rerun: bool = False,
+                warn: Callable[[str], None] | None = None) -> tuple[dict[str, RunResult], list[RunSpec]]:
+    """The finished runs of ``specs`` in ``runs_dir`` (by file name) and the specs still to run.
+
+    A file at a spec's name that is not a usable run file of that spec (unreadable, foreign or
+    malformed metadata, another spec's key) is not an error: the run is done again and its file
+    replaced (atomically, when it finishes) - the sweep resumes instead of stopping at a file it
+    cannot use. ``warn`` gets one line per such file, naming it and why (shared by ``evaluate``
+    and ``campaign``)."""
     done: dict[str, RunResult] = {}
     todo: list[RunSpec] = []
     for spec in specs:
-        path = out_dir / "runs" / spec.filename
+        path = runs_dir / spec.filename
         if path.exists() and not rerun:
-            with contextlib.suppress(ValueError):
+            try:
                 res = load_run(path, arrays=False)
+            except ValueError as exc:
+                if warn is not None:
+                    warn(f"{exc} - running it again (the file will be replaced)")
+            else:
                 if res.spec.key == spec.key:
                     done[spec.filename] = res
                     continue
+                if warn is not None:
+                    warn(f"{path} holds another run (key {res.spec.key}, expected {spec.key}) - running it again")
         todo.append(spec)
+    return done, todo
+
+
+def _warn(msg: str) -> None:
+    print(f"warning: {msg}", file=sys.stderr)
+
+
+def _sweep(out_dir: Path, specs: list[RunSpec], *, t0: float, scenario: str, backend: str, jobs: int,
+           address: str | None, wind_type: str, turbine: Mapping[str, Any] | None, drone: str | None,
+           env_overrides: Mapping[str, Any] | None, factories: Mapping[str, Any], figures: bool,
+           figure_format: str, progress: bool, rerun: bool, command: str | None,
+           on_result: Callable[[RunResult], None] | None) -> Evaluation:
+    """The part of :func:`run_evaluation` after validation: resume, run, write the tables and
+    figures. Interrupted (SIGINT, SIGTERM) or failed in any phase, it writes results.csv and
+    results.md of what finished (marked incomplete) before the exception propagates."""
+    _remove_stale_temporaries(out_dir / "runs")
+    notes: list[str] = []
+    done, todo = resume_runs(out_dir / "runs", specs, rerun=rerun,
+                             warn=lambda m: (_warn(m), notes.append(f"Warning: {m}")))
     n_resumed = len(done)
 
     def finished(res: RunResult) -> None:
@@ -248,7 +288,6 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         if on_result is not None:
             on_result(res)
 
-    notes = []
     if n_resumed:
         if progress:
             print(f"resuming: {n_resumed} of {len(specs)} runs already finished in {out_dir / 'runs'}",
@@ -259,34 +298,41 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
             msg = (f"{len(stale)} resumed run(s) were made by other simulation/controller code than this one "
                    f"(code {code}); their numbers may differ from a fresh run - use --rerun to redo them: "
                    + ", ".join(stale))
-            print(f"warning: {msg}", file=sys.stderr)
+            _warn(msg)
             notes.append(f"Warning: {msg}")
     ctx = ReportContext(scenario=scenario, wind_type=wind_type, backend=backend, jobs=jobs,
                         n_planned=len(specs), n_resumed=n_resumed,
                         command=command or "", notes=notes,
                         overrides={k: v for k, v in (("turbine", dict(turbine or {})), ("drone", drone),
                                                      ("env", dict(env_overrides or {}))) if v})
+
+    def write_tables(results: list[RunResult]) -> None:
+        """results.csv and results.md of ``results`` on the way out of an interrupted or failed
+        sweep; a second signal does not cut them short, an unwritable disk (what is being
+        reported then) is not a second error."""
+        ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
+        with interrupts_deferred(raise_noted=False), contextlib.suppress(OSError):
+            write_csv(results, out_dir / "results.csv")
+            write_markdown(results, ctx, out_dir / "results.md")
+
     try:
         if todo:
             run_specs(backend, todo, finished, jobs=jobs, address=address, factories=factories, progress=progress)
     except BaseException:
         # An interrupt can land between a run file's rename and its bookkeeping: the files on disk
         # are the truth (they are what a rerun resumes from).
-        for s in specs:
-            path = out_dir / "runs" / s.filename
-            if s.filename not in done and path.exists():
-                with contextlib.suppress(ValueError):
-                    done[s.filename] = load_run(path, arrays=False)
-        results = [done[s.filename] for s in specs if s.filename in done]
-        if results:
-            ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
-            with contextlib.suppress(OSError):   # an unwritable disk is what is being reported
-                write_csv(results, out_dir / "results.csv")
-                write_markdown(results, ctx, out_dir / "results.md")
+        with interrupts_deferred(raise_noted=False):
+            for s in specs:
+                path = out_dir / "runs" / s.filename
+                if s.filename not in done and path.exists():
+                    with contextlib.suppress(ValueError):
+                        done[s.filename] = load_run(path, arrays=False)
+        write_tables([done[s.filename] for s in specs if s.filename in done])   # "Incomplete: k of n", k >= 0
         raise
     results = [done[s.filename] for s in specs]
+    files: dict[str, Any] = {}
     try:
-        files: dict[str, Any] = {"csv": write_csv(results, out_dir / "results.csv")}
+        files["csv"] = write_csv(results, out_dir / "results.csv")
         if figures:
             from .figures import make_figures  # matplotlib only when drawing
             files["figures"] = make_figures([load_run(r.path) for r in _first_seeds(results)], out_dir, scenario,
@@ -297,7 +343,7 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
                    f"one in the same --out; not read, not in these tables): " + ", ".join(stale)
                    + " - delete them or use a fresh --out")
             if progress:
-                print(f"warning: {msg}", file=sys.stderr)
+                _warn(msg)
             ctx.notes.append(f"Warning: {msg}")
         files["stale"] = stale
         ctx.wall_time_s, ctx.n_ran = time.perf_counter() - t0, len(done) - n_resumed
@@ -305,6 +351,12 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     except OSError as exc:
         raise OutputDirError(f"cannot write the results to {str(out_dir)!r}: {exc.strerror or exc}; the run files "
                              "are kept - rerun the same command to write the tables") from None
+    except BaseException:   # interrupted (or failed) while drawing the figures: the tables still get written
+        if "md" not in files:
+            ctx.notes.append("Figures: not all drawn - the command stopped while drawing them; rerun the same "
+                             "command to draw them (every run is finished and resumed)")
+            write_tables(results)
+        raise
     return Evaluation(out=out_dir, results=results, n_ran=ctx.n_ran, n_resumed=n_resumed,
                       wall_time_s=ctx.wall_time_s, files=files)
 

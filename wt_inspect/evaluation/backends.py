@@ -18,8 +18,9 @@ each worker asks the kernel for SIGKILL when its parent dies (``prctl(PR_SET_PDE
 every platform a daemon thread in the worker exits it once its parent is gone (reparenting changes
 ``os.getppid()``), so a SIGKILLed ``wt-inspect evaluate`` leaves no worker behind - and with the
 workers gone the resource tracker, which exits when the last holder of its pipe does, follows.
-SIGTERM of the parent is turned into :class:`Terminated` (a ``KeyboardInterrupt``) while a pool
-runs, so the pool is terminated and the finished runs' files are written as on Ctrl-C.
+SIGTERM of the parent is turned into :class:`~wt_inspect_env.interrupts.Terminated` (a
+``KeyboardInterrupt``) while runs execute (:func:`~wt_inspect_env.interrupts.interrupts_raise`, with
+any number of jobs), so the pool is terminated and the finished runs' files are written as on Ctrl-C.
 """
 from __future__ import annotations
 
@@ -35,6 +36,7 @@ import threading
 import time
 from typing import Any, Callable, Mapping, Sequence
 
+from wt_inspect_env.interrupts import Terminated, interrupts_raise  # noqa: F401 - Terminated: re-exported
 from wt_inspect_env.process_memory import release_free_heap
 from wt_inspect_env.ray_session import import_ray, init_ray
 
@@ -116,10 +118,6 @@ PR_SET_PDEATHSIG = 1   # <linux/prctl.h>
 PARENT_POLL_S = 0.5
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM received while runs were in flight (handled like Ctrl-C: the pool is stopped)."""
-
-
 def die_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
     """Make this process end when ``parent_pid`` does: ``PR_SET_PDEATHSIG`` on Linux, and on every
     platform a daemon thread that polls ``os.getppid()`` (an orphan is reparented) and exits.
@@ -136,23 +134,6 @@ def die_with_parent(parent_pid: int, poll_s: float = PARENT_POLL_S) -> None:
             if os.getppid() != parent_pid:
                 os._exit(1)
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Any:
-    """Within the block, SIGTERM raises :class:`Terminated` in the main thread (outside the
-    main thread, where no handler can be installed, nothing changes)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def handler(signum: int, frame: Any) -> None:
-        raise Terminated(f"signal {signum}")
-    previous = signal.signal(signal.SIGTERM, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def _init_worker(q: Any, parent_pid: int | None = None) -> None:
@@ -186,12 +167,13 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None
     board = ProgressBoard(len(specs), progress)
     try:
         if jobs == 1 or len(specs) <= 1:
-            for spec in specs:
-                key = spec.filename
-                res = run(spec, factories.get(spec.controller), record=record,
-                          progress=lambda t, tot, k=key, s=spec: board.report(k, _label(s), t, tot))
-                on_result(res)
-                board.finish(key, _note(res))
+            with interrupts_raise():   # in this process too, SIGTERM ends the sweep as Ctrl-C does
+                for spec in specs:
+                    key = spec.filename
+                    res = run(spec, factories.get(spec.controller), record=record,
+                              progress=lambda t, tot, k=key, s=spec: board.report(k, _label(s), t, tot))
+                    on_result(res)
+                    board.finish(key, _note(res))
             return
         ctx = mp.get_context("spawn")   # no inherited PyBullet/CasADi/BLAS state from the parent
         q = ctx.Queue()
@@ -212,7 +194,7 @@ def run_local(specs: Sequence[RunSpec], on_result: OnResult, *, jobs: int | None
         thread.start()
         pool = cf.ProcessPoolExecutor(max_workers=min(jobs, len(specs)), mp_context=ctx,
                                       initializer=_init_worker, initargs=(q, os.getpid()))
-        with sigterm_as_interrupt():
+        with interrupts_raise():
             try:
                 futures = {pool.submit(_local_task, s, factories.get(s.controller), record, task): s for s in specs}
                 for fut in cf.as_completed(futures):
@@ -254,7 +236,7 @@ def run_ray(specs: Sequence[RunSpec], on_result: OnResult, *, address: str | Non
     board = ProgressBoard(len(specs), progress)
     remote = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
     refs: dict[Any, RunSpec] = {}
-    with sigterm_as_interrupt():   # SIGTERM: cancel the tasks and stop the local Ray instance
+    with interrupts_raise():   # SIGTERM: cancel the tasks and stop the local Ray instance
         try:
             refs = {remote.remote(s, factories.get(s.controller), record, task): s for s in specs}
             pending = list(refs)

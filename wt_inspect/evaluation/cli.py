@@ -10,7 +10,8 @@ the command line overriding the file's keys::
     wt-inspect evaluate --config examples/paper.toml --winds 4 --out out/paper_w4
 
 Exit codes: 0 done, 2 bad arguments or an unwritable output directory (nothing is written), 130
-interrupted (finished runs are kept; rerun the same command to resume).
+interrupted by SIGINT or SIGTERM, with any --jobs and in any phase (finished runs are kept,
+results.md / results.csv list them marked "Incomplete: k of n"; rerun the same command to resume).
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ from typing import Any
 
 from wt_inspect_env.commands.args import json_object as _json
 from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
+from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_raise, signal_name
 
 from . import OutputDirError, command_line, run_evaluation
 from .backends import BACKENDS
@@ -117,6 +119,16 @@ def resolve(args: argparse.Namespace) -> EvaluateConfig:
 
 
 def main(argv: list[str], prog: str = "wt-inspect evaluate") -> int:
+    with interrupts_raise():   # SIGTERM = Ctrl-C from here on, whatever --jobs
+        try:
+            return _main(argv, prog)
+        except KeyboardInterrupt as exc:   # before the sweep started: nothing was written
+            print(f"\n{prog}: interrupted ({signal_name(exc)}) before any run started; nothing written",
+                  file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+
+def _main(argv: list[str], prog: str) -> int:
     args = build_parser(prog).parse_args(argv)
     try:
         cfg = resolve(args)
@@ -134,10 +146,9 @@ def main(argv: list[str], prog: str = "wt-inspect evaluate") -> int:
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"\n{prog}: interrupted; finished runs are kept in {cfg.out}/runs - rerun the same command to resume",
-              file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        print(f"\n{prog}: {interrupted_message(exc, cfg.out, 'runs')}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"{len(ev.results)} runs ({ev.n_ran} executed, {ev.n_resumed} resumed) in {ev.wall_time_s:.1f} s; wrote "
           f"{ev.files['csv']}, {ev.files['md']}" + (f" and {len(ev.files.get('figures', []))} figures"
                                                     if ev.files.get("figures") else ""))

@@ -453,8 +453,55 @@ def _json_default(o: Any) -> Any:
     raise TypeError(f"not JSON-serialisable: {type(o).__name__}")
 
 
+# What a run file's metadata holds (see :meth:`RunResult.meta`): key -> accepted types. A file
+# written by this format's code has exactly these; anything else is refused naming the field.
+_NUMBER = (int, float)
+_META_FIELDS: dict[str, tuple[type, ...]] = {
+    "format": (str,), "spec": (dict,), "metrics": (dict,), "termination": (str, type(None)),
+    "mission_complete": (bool,), "steps": (int,), "sim_time_s": _NUMBER, "wall_time_s": _NUMBER,
+    "solve": (dict,), "d_ref": _NUMBER, "safety_margin": _NUMBER, "code": (str,)}
+_META_OPTIONAL = {"code"}
+_SPEC_FIELDS: dict[str, tuple[type, ...]] = {
+    "scenario": (str,), "controller": (str,), "wind": _NUMBER, "seed": (int,), "env_options": (dict,),
+    "max_time": (int, float, type(None)), "record_every": (int,), "controller_id": (str,), "trust_model": (bool,)}
+_SPEC_OPTIONAL = {"controller_id", "trust_model"}
+
+
+def _check_fields(path: Path, where: str, doc: Any, fields: Mapping[str, tuple[type, ...]],
+                  optional: set[str]) -> None:
+    """ValueError naming the file and the field unless ``doc`` is a JSON object with exactly
+    ``fields`` (the ``optional`` ones may be absent), each of an accepted type."""
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path} is not a run file of this format: its {where} is a {type(doc).__name__}, "
+                         "not an object")
+    extra = sorted(set(doc) - set(fields))
+    if extra:
+        raise ValueError(f"{path} is not a run file of this format: unknown {where} field {extra[0]!r}")
+    missing = [k for k in fields if k not in doc and k not in optional]
+    if missing:
+        raise ValueError(f"{path} is not a run file of this format: {where} field {missing[0]!r} is missing")
+    for k, v in doc.items():
+        ok = isinstance(v, fields[k]) and not (isinstance(v, bool) and bool not in fields[k])
+        if not ok:
+            raise ValueError(f"{path} is not a run file of this format: {where} field {k!r} is {v!r}")
+
+
+def _check_meta(path: Path, meta: Any) -> "RunSpec":
+    """The run spec of a run file's metadata, after checking every field (see :data:`_META_FIELDS`)."""
+    if isinstance(meta, dict) and meta.get("format") != FORMAT:
+        raise ValueError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    _check_fields(path, "metadata", meta, _META_FIELDS, _META_OPTIONAL)
+    _check_fields(path, "spec", meta["spec"], _SPEC_FIELDS, _SPEC_OPTIONAL)
+    for where in ("metrics", "solve"):
+        for k, v in meta[where].items():
+            if isinstance(v, bool) and where == "solve" or not isinstance(v, (int, float, str, type(None))):
+                raise ValueError(f"{path} is not a run file of this format: {where} field {k!r} is {v!r}")
+    return RunSpec(**meta["spec"])
+
+
 def load_run(path: str | Path, *, arrays: bool = True) -> RunResult:
-    """Read a run file (``ValueError`` if it is not one)."""
+    """Read a run file (``ValueError`` naming the file - and the field, for metadata that is not
+    this format's - if it is not one)."""
     path = Path(path)
     try:
         with np.load(path, allow_pickle=False) as data:
@@ -462,10 +509,7 @@ def load_run(path: str | Path, *, arrays: bool = True) -> RunResult:
             arr = {k: data[k] for k in data.files if k != "meta"} if arrays else {}
     except Exception as exc:   # zip, key, JSON errors alike: the file is not a complete run file
         raise ValueError(f"{path} is not a readable run file: {exc}") from None
-    if meta.get("format") != FORMAT:
-        raise ValueError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
-    sd = meta["spec"]
-    spec = RunSpec(**{**sd, "env_options": sd["env_options"]})
+    spec = _check_meta(path, meta)
     return RunResult(spec=spec, metrics=meta["metrics"], termination=meta["termination"],
                      mission_complete=meta["mission_complete"], steps=meta["steps"],
                      sim_time_s=meta["sim_time_s"], wall_time_s=meta["wall_time_s"], solve=meta["solve"],

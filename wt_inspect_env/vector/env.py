@@ -48,6 +48,7 @@ from ..reference import InspectionReference, ReferenceConfig
 from ..sim import SimConfig
 from ..spaces import ActionScaling
 from ..step_terms import REWARD_TERMS, observations, reward_terms
+from ..validation import check_actions
 from ..wind import make_wind
 from .metrics import BatchedMetrics
 from .reference import BatchedReference
@@ -204,21 +205,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         if not self._started:
             raise RuntimeError("call reset() before step()")
         n = self.num_envs
-        raw = actions if isinstance(actions, np.ndarray) else np.asarray(actions)
-        if raw.dtype.kind in "cbUS":   # a cast would drop the imaginary part or parse text
-            raise ValueError(f"actions must be a real numeric array of shape ({n}, 4), got dtype {raw.dtype}")
-        try:
-            a = np.asarray(raw, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError(f"actions must be a numeric array of shape ({n}, 4), got {actions!r}") from None
-        if a.shape != (n, 4):
-            raise ValueError(f"actions must have shape ({n}, 4), got shape {a.shape}")
-        if not np.isfinite(a).all():
-            bad = int(np.flatnonzero(~np.isfinite(a).all(axis=1))[0])
-            raise ValueError(f"actions must be finite, got actions[{bad}] = {a[bad].tolist()}")
-        if np.any(np.abs(a) > 1.0 + 1e-6):
-            bad = int(np.flatnonzero((np.abs(a) > 1.0 + 1e-6).any(axis=1))[0])
-            raise ValueError(f"actions must lie in [-1, 1], got actions[{bad}] = {a[bad].tolist()}")
+        a = check_actions(actions, (n, 4), "actions")   # the single env's validation, batched
         lo, hi = self._lo, self._hi
         commands = lo + (np.clip(a, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo)
         if self.config.randomization is not None:
