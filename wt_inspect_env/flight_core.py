@@ -109,15 +109,6 @@ def load_library(cache_dir: str | os.PathLike | None = None) -> ctypes.CDLL:
         return lib
 
 
-def available(cache_dir: str | os.PathLike | None = None) -> str | None:
-    """None when the compiled core can be used here, else why not (one line)."""
-    try:
-        load_library(cache_dir)
-    except (RuntimeError, OSError, ValueError) as exc:
-        return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-    return None
-
-
 class FlightCore:
     """``n`` drones' flight state and plants in arrays, stepped by the compiled kernel.
 

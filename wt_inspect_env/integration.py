@@ -106,13 +106,16 @@ class DroneIntegrator:
 
     def sync_bodies(self, idx: Sequence[int] | None = None) -> None:
         """Put the PyBullet bodies at the drones' current poses (for rendering and GUI views)."""
-        core, cid = self.core, self._cid
         for i in range(self.n) if idx is None else idx:
             if not self._in_bullet[i]:
-                p.resetBasePositionAndOrientation(self.bodies[i], core.pos[i].tolist(), core.quat[i].tolist(),
-                                                  physicsClientId=cid)
-                p.resetBaseVelocity(self.bodies[i], core.vel[i].tolist(), core.omega[i].tolist(),
-                                    physicsClientId=cid)
+                self._place(i)
+
+    def _place(self, i: int) -> None:
+        """Drone ``i``'s PyBullet body at the core's pose and velocities."""
+        core, cid = self.core, self._cid
+        p.resetBasePositionAndOrientation(self.bodies[i], core.pos[i].tolist(), core.quat[i].tolist(),
+                                          physicsClientId=cid)
+        p.resetBaseVelocity(self.bodies[i], core.vel[i].tolist(), core.omega[i].tolist(), physicsClientId=cid)
 
     # ------------------------------------------------------------------ stepping
     def step(self, sink: ContactSink | None = None) -> None:
@@ -172,8 +175,7 @@ class DroneIntegrator:
         bodies = [self.bodies[i] for i in idx.tolist()]
         for i, b in zip(idx.tolist(), bodies):
             if not self._in_bullet[i]:
-                p.resetBasePositionAndOrientation(b, core.pos[i].tolist(), core.quat[i].tolist(), physicsClientId=cid)
-                p.resetBaseVelocity(b, core.vel[i].tolist(), core.omega[i].tolist(), physicsClientId=cid)
+                self._place(i)
                 p.setCollisionFilterGroupMask(b, -1, self._group, self.masks[i], physicsClientId=cid)
                 self._in_bullet[i] = True
         applyForce, applyTorque, LINK = p.applyExternalForce, p.applyExternalTorque, p.LINK_FRAME
