@@ -39,7 +39,7 @@ def test_bare_sb3_model_flies_the_wrapped_env_as_the_controller_flies_the_raw_on
         action, _ = model.predict(x, deterministic=True)
         x, reward, terminated, truncated, info = env.step(action)
         assert np.isfinite(reward) and info["env_steps"] == repeat
-        wrapped_positions.append(env.unwrapped.sim.state[:3].copy())
+        wrapped_positions.append(env.unwrapped.sim.state[0, :3].copy())
         assert not (terminated or truncated)
 
     controller.reset()
@@ -48,7 +48,7 @@ def test_bare_sb3_model_flies_the_wrapped_env_as_the_controller_flies_the_raw_on
     for k in range(DECISIONS * repeat):
         obs, *_ = raw.step(controller.act(obs))
         if (k + 1) % repeat == 0:
-            ctrl_positions.append(raw.unwrapped.sim.state[:3].copy())
+            ctrl_positions.append(raw.unwrapped.sim.state[0, :3].copy())
     np.testing.assert_array_equal(np.array(wrapped_positions), np.array(ctrl_positions))
     # and it flew: 1.6 s of the surface task near the stand-off pose, not a fall
     assert np.linalg.norm(wrapped_positions[-1] - wrapped_positions[0]) < 5.0

@@ -100,11 +100,11 @@ def test_frustum_culling_draws_the_same_image_as_the_whole_turbine():
             env.step(a if k % 2 else hover)
             if k % 6:
                 continue
-            rgb, depth = camera_images(env.sim, env.camera, env.sim.state, (40, 30), env.config.depth_far)
-            shown = env.sim._chunks[env.sim.obstacle_id]["shown"]
+            rgb, depth = camera_images(env.sim, env.camera, env.sim.state[0], (40, 30), env.config.depth_far)
+            shown = env.sim._chunks[env.sim.geometry[0]]["shown"]
             assert 0 < shown.sum() < len(shown)
             env.sim.show_obstacle_chunks(True)
-            origin, R = env.camera.pose(env.sim.state[0:3], env.sim.state[6:10])
+            origin, R = env.camera.pose(env.sim.state[0, 0:3], env.sim.state[0, 6:10])
             rgba, buf = _render(env.sim.client, origin, origin + R[:, 2], -R[:, 1], env.camera.config.fov_deg[1],
                                 env.config.depth_far, 40, 30, flags=p.ER_NO_SEGMENTATION_MASK)
             np.testing.assert_array_equal(rgb, rgba[:, :, :3])
@@ -112,9 +112,8 @@ def test_frustum_culling_draws_the_same_image_as_the_whole_turbine():
             checked += 1
         assert checked == 10
         # the phase-2 (turned) turbine is drawn, the parked phase-1 one is not
-        env._set_phase(1)
-        hidden = env.sim._chunks[[b for b in env.sim._chunks if b != env.sim.obstacle_id][0]]["shown"]
-        assert not hidden.any()
+        env.world.set_phase(0, 1)
+        assert env.sim._chunks[1]["shown"].all() and not env.sim._chunks[0]["shown"].any()
         assert env.sim.obstacle_chunks is not None
     finally:
         env.close()

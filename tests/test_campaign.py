@@ -89,10 +89,10 @@ def test_a_start_drawn_inside_the_turbine_gets_a_new_direction_deterministically
         u = env.unwrapped
         near = TurbineProximity.from_mission(u.mission).phases[0]
         u.reset(seed=spec.seed)
-        assert near.distance(u.sim.state[None, 0:3])[0] < 1.0          # the drawn start is in the tower
+        assert near.distance(u.sim.state[0:1, 0:3])[0] < 1.0          # the drawn start is in the tower
         offset, redraws = cp.clear_start(env, spec)
         assert redraws >= 1 and np.isclose(np.linalg.norm(offset), d["start_offset_m"])
-        assert near.distance(u.sim.state[None, 0:3])[0] >= cp.START_CLEARANCE_RATIO * 7.0
+        assert near.distance(u.sim.state[0:1, 0:3])[0] >= cp.START_CLEARANCE_RATIO * 7.0
         assert cp.clear_start(env, spec) == (offset, redraws)            # seeded by the episode
         clear = cp.draw_episodes(cp.CampaignConfig(episodes=1))[0]
         spec0 = make_spec(cp.SCENARIO, "vtnmpc-plus", clear["wind"], clear["seed"], cp.episode_options(clear, "full"),

@@ -131,7 +131,7 @@ def _fly(policy, offset, seconds: float) -> tuple[float, dict]:
         worst = np.inf
         while True:
             obs, _, term, trunc, info = env.step(policy.act(obs))
-            d = fields[env._phase_index].distance(env.sim.state[None, 0:3], 50.0)[0]
+            d = fields[env.phase_index].distance(env.sim.state[0:1, 0:3], 50.0)[0]
             worst = min(worst, float(d))
             if term or trunc:
                 return worst, info

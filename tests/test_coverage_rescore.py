@@ -48,7 +48,7 @@ def test_a_hold_uses_the_next_phases_geometry():
         p = c + 7.0 * n / np.linalg.norm(n)
         yaw = np.arctan2(-n[1], -n[0])
         q = np.array([0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)])     # [x, y, z, w]
-        k = 3 * u._camera_every
+        k = 3 * u.world.camera_every
         pos, quat = np.tile(p, (k, 1)), np.tile(q, (k, 1))
         waiting = u.replay_coverage(pos, quat, np.ones(k, int), np.ones(k, bool)).counts
         phase2 = u.replay_coverage(pos, quat, np.full(k, 2), np.zeros(k, bool)).counts

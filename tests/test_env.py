@@ -7,6 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 import wt_inspect_env  # noqa: F401  (registers the ids)
 from wt_inspect_env import ENV_IDS
+from wt_inspect_env.batched_sim import ray_mask
 
 
 def make(env_id="WindTurbineInspection-Surface-v0", **kw):
@@ -113,9 +114,9 @@ def test_terminates_on_collision_with_the_blade():
     env.reset(seed=0)
     u = env.unwrapped
     # put the drone onto the blade surface: the contact must end the episode as a crash
-    state = u.sim.state.copy()
+    state = u.sim.state[0].copy()
     state[0:3] = u.mission.points[0] + 0.05 * u.mission.normals[0]
-    u.sim.reset(state)
+    u.sim.reset_drone(0, state)
     _, r, term, trunc, info = env.step(u.scaling.hover_action())
     assert term and not trunc
     assert info["termination"] == "collision"
@@ -146,7 +147,7 @@ def test_pose_error_limit_ends_the_episode_the_first_step_beyond_it():
     up = np.array([0, 0, 0, 1.0], dtype=np.float32)
     for _ in range(2000):
         _, _, term, trunc, info = env.step(up)
-        err = float(np.linalg.norm(u.sim.state[0:3] - info["ideal_position"]))
+        err = float(np.linalg.norm(u.sim.state[0, 0:3] - info["ideal_position"]))
         if term or trunc:
             break
         assert err <= limit
@@ -159,7 +160,7 @@ def test_pose_error_limit_ends_the_episode_the_first_step_beyond_it():
     env.reset(seed=0)
     for _ in range(200):
         _, _, term, trunc, info = env.step(up)
-    assert not term and np.linalg.norm(env.unwrapped.sim.state[0:3] - info["ideal_position"]) > limit
+    assert not term and np.linalg.norm(env.unwrapped.sim.state[0, 0:3] - info["ideal_position"]) > limit
     env.close()
 
 
@@ -169,14 +170,14 @@ def test_a_start_far_across_the_rotor_plane_is_inside_its_working_volume():
     env = make(wind="none", start_offset=(0.0, 40.0, 0.0))
     _, info = env.reset(seed=0)
     u = env.unwrapped
-    start = u.sim.state[0:3].copy()
-    base_lo, base_hi = u._vol_base
+    start = u.sim.state[0, 0:3].copy()
+    base_lo, base_hi = u.mission.working_volume(u.config.working_margin)
     assert start[1] > base_hi[1]                       # outside the mission's own box
-    assert np.all(u._vol_lo <= start - 30.0) and np.all(u._vol_hi >= start + 30.0)
+    assert np.all(u.world.volume_lo[0] <= start - 30.0) and np.all(u.world.volume_hi[0] >= start + 30.0)
     _, _, term, trunc, info = env.step(u.scaling.hover_action())
     assert not term and not trunc
     env.reset(seed=0, options={"start_offset": (0.0, 0.0, 0.0)})   # the next episode's own box
-    assert np.array_equal(u._vol_hi, np.maximum(base_hi, u.sim.state[0:3] + 30.0))
+    assert np.array_equal(u.world.volume_hi[0], np.maximum(base_hi, u.sim.state[0, 0:3] + 30.0))
     env.close()
 
 
@@ -201,15 +202,16 @@ def test_phase_change_swaps_geometry_and_keeps_coverage():
     env = gym.make("WindTurbineInspection-v0", wind="none")
     env.reset(seed=0)
     u = env.unwrapped
-    seen_before = u.coverage.counts.copy()
-    v1 = u.visibility.vertices.copy()
-    u._set_phase(1)
-    assert not np.allclose(u.visibility.vertices, v1)       # blades turned
-    np.testing.assert_array_equal(u.coverage.counts, seen_before)
+    seen_before = u.coverage_counts.copy()
+    v1 = u.world.visibility[0].vertices
+    u.world.set_phase(0, 1)
+    assert u.phase_index == 1 and u.sim.geometry[0] == 1      # collides with and sees the turned rotor
+    v2 = u.world.visibility[1].vertices
+    assert not np.allclose(v2, v1)       # blades turned
+    np.testing.assert_array_equal(u.coverage_counts, seen_before)
     # triangle identity: triangle i turned about the rotor axis keeps its distance to the hub centre
     c = u.mission.turbines[0].rotor_center
-    np.testing.assert_allclose(np.linalg.norm(u.visibility.vertices - c, axis=2), np.linalg.norm(v1 - c, axis=2),
-                               atol=1e-9)
+    np.testing.assert_allclose(np.linalg.norm(v2 - c, axis=2), np.linalg.norm(v1 - c, axis=2), atol=1e-9)
     env.close()
 
 
@@ -256,13 +258,16 @@ def test_camera_does_not_see_its_own_drone():
     env = make(wind="none")
     env.reset(seed=0)
     u = env.unwrapped
-    state = u.sim.state
+    u.sim.sync_scene()                       # the drone's body where the drone is
+    state = u.sim.state[0]
     origin, R = u.camera.pose(state[0:3], state[6:10])
     # targets all around the camera, a few metres away, in open air: nothing may block them
     dirs = np.random.default_rng(0).normal(size=(200, 3))
     dirs[:, 2] = np.abs(dirs[:, 2])          # upwards: away from the ground
     targets = origin + 1.5 * dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-    assert not u.visibility.occluder.occluded(origin, targets).any()
+    hits = p.rayTestBatch([origin.tolist()] * len(targets), targets.tolist(), collisionFilterMask=ray_mask(0),
+                          physicsClientId=u.sim.client)
+    assert all(h[0] == -1 for h in hits)
     env.close()
 
 
@@ -299,6 +304,6 @@ def test_start_progress_starts_on_the_path_at_the_ideal_pose():
 
 def test_reference_thresholds_scale_with_the_standoff():
     env = make(standoff=10.5)
-    assert env.unwrapped.reference.config.lag_threshold == pytest.approx(1.5)
-    assert env.unwrapped.reference.config.stop_threshold == pytest.approx(3.0)
+    assert env.unwrapped.world.reference.config.lag_threshold == pytest.approx(1.5)
+    assert env.unwrapped.world.reference.config.stop_threshold == pytest.approx(3.0)
     env.close()

@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from wt_inspect_env.batched_sim import BatchedQuadrotorSim
 from wt_inspect_env.commands.bench_sim import excitation, integrator_difference
 from wt_inspect_env.dynamics import hover_state
 from wt_inspect_env.flight_core import FlightCore
@@ -16,7 +17,6 @@ from wt_inspect_env.quadrotor import get_preset
 from wt_inspect_env.rate_control import Mixer, RateController, RateGains
 from wt_inspect_env.sim import QuadrotorSim, SimConfig, SubstepConstants
 from wt_inspect_env.turbine import build_turbine
-from wt_inspect_env.vector.sim import BatchedQuadrotorSim
 from wt_inspect_env.wind import GustWind
 
 M100 = get_preset("matrice100")

@@ -55,7 +55,7 @@ def fly_served(tmp_path, faults):
     frame = site.frame(*_turbine_pose(u.mission))
     sim = QuadrotorSim(u.params, SimConfig(ctrl_hz=u.config.ctrl_hz, physics_hz=u.config.physics_hz),
                        wind=u.wind, obstacles=u.mission.turbines[0].mesh)      # the env's seeded wind field
-    x0 = u.sim.state.copy()
+    x0 = u.sim.state[0].copy()
     n_triangles = u.n_triangles
     env.close()
     s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)

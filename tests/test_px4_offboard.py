@@ -48,7 +48,7 @@ def world():
     try:
         env.reset(seed=0)
         u = env.unwrapped
-        return {"x0": u.sim.state.copy(), "params": u.params, "frame": SITE.frame(*_turbine_pose(u.mission)),
+        return {"x0": u.sim.state[0].copy(), "params": u.params, "frame": SITE.frame(*_turbine_pose(u.mission)),
                 "hover": u.scaling.hover_action()}
     finally:
         env.close()

@@ -30,10 +30,10 @@ def lab_env():
 
 def _fly(env, actions, **reset_kw) -> np.ndarray:
     env.reset(**reset_kw)
-    out = [env.sim.state]
+    out = [env.sim.state[0]]
     for a in actions:
         env.step(a)
-        out.append(env.sim.state)
+        out.append(env.sim.state[0])
     return np.stack(out)
 
 
@@ -74,16 +74,16 @@ def test_off_by_default_and_a_nominal_draw_is_bit_identical_to_off(lab_env):
     off = _fly(env, actions, seed=5)
     _, info = env.reset(seed=5)
     assert env.config.randomization is None and "randomization" not in info
-    assert env.sim.plant is env.params
+    assert env.sim.plants[0] is env.params
     # The whole randomisation path (a new plant in PyBullet, constants, queue) with nothing changed
     # flies exactly today's trajectory: the plant path adds no numerical difference.
     same = _fly(env, actions, seed=5, options={"randomization": NOMINAL})
     np.testing.assert_array_equal(same, off)
     # after a randomised episode the next plain reset is the nominal airframe again, bit for bit
     _fly(env, actions[:10], seed=5, options={"randomization": True})
-    assert env.sim.plant is not env.params
+    assert env.sim.plants[0] is not env.params
     np.testing.assert_array_equal(_fly(env, actions, seed=5), off)
-    assert env.sim.plant is env.params
+    assert env.sim.plants[0] is env.params
 
 
 def test_heavier_airframe_sinks_under_the_nominal_hover_command_as_newton_says(lab_env):
@@ -94,7 +94,7 @@ def test_heavier_airframe_sinks_under_the_nominal_hover_command_as_newton_says(l
     assert abs(level[-1, 2] - level[0, 2]) < 1e-3   # the nominal airframe hovers
     k = 1.1
     heavy = _fly(env, [hover] * steps, seed=0, options={"randomization": pinned(mass=(k, k))})
-    assert env.sim.plant.mass == pytest.approx(k * get_preset("lab250").mass)
+    assert env.sim.plants[0].mass == pytest.approx(k * get_preset("lab250").mass)
     # m a = m0 g - m g  ->  a = -g (1 - 1/k); drop 1/2 a t^2, less a little for the rotor lag and drag
     drop = heavy[0, 2] - heavy[-1, 2]
     ideal = 0.5 * GRAVITY * (1.0 - 1.0 / k) * 1.0 ** 2
@@ -114,7 +114,7 @@ def test_inertia_and_motor_lag_draws_change_the_rotational_response(lab_env):
         env.reset(seed=0, options={"randomization": pinned(**rand)})
         for _ in range(n):
             env.step(a)
-        return env.sim.body_rates[0]
+        return env.sim.body_rates[0, 0]
     nominal = roll_rate_after(3)
     assert roll_rate_after(3, inertia=(1.5, 1.5)) < nominal < roll_rate_after(3, inertia=(0.7, 0.7))
     assert roll_rate_after(3, motor_time_constant=(2.0, 2.0)) < nominal
@@ -141,8 +141,8 @@ def test_same_seed_same_draws_and_flight_different_seed_different_draws():
             assert cfg.latency_steps[0] <= r["latency_steps"] <= cfg.latency_steps[1]
             assert cfg.position_noise[0] <= r["position_noise"] <= cfg.position_noise[1]
         # what info reports is what PyBullet flies
-        assert b.sim.plant.mass == rb["mass"] and b.sim.thrust_scale == rb["thrust_scale"]
-        assert b.sim.plant.motor_time_constant == rb["motor_time_constant"]
+        assert b.sim.plants[0].mass == rb["mass"] and b.sim.thrust_scales[0] == rb["thrust_scale"]
+        assert b.sim.plants[0].motor_time_constant == rb["motor_time_constant"]
     finally:
         a.close()
         b.close()
@@ -169,9 +169,9 @@ def test_observation_noise_has_the_drawn_spread_and_leaves_the_rest_exact(lab_en
     err, norms = [], []
     for _ in range(300):
         obs, _, _, _, info = env.step(hover)
-        err.append(obs["position"] - env.sim.state[0:3])
+        err.append(obs["position"] - env.sim.state[0, 0:3])
         norms.append(np.linalg.norm(obs["quaternion"]))
-        np.testing.assert_array_equal(obs["velocity_body"], env.sim.state[3:6].astype(np.float32))
+        np.testing.assert_array_equal(obs["velocity_body"], env.sim.state[0, 3:6].astype(np.float32))
     err = np.array(err)
     assert abs(err.mean()) < 0.01 and 0.8 * sd < err.std() < 1.2 * sd
     np.testing.assert_allclose(norms, 1.0, atol=1e-6)

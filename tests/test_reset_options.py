@@ -22,10 +22,10 @@ def surface_env():
 def _rollout(env, n: int = 30, **reset_kw) -> tuple[dict, np.ndarray]:
     obs, _ = env.reset(**reset_kw)
     hover = env.scaling.hover_action()
-    states = [env.sim.state]
+    states = [env.sim.state[0]]
     for _ in range(n):
         env.step(hover)
-        states.append(env.sim.state)
+        states.append(env.sim.state[0])
     return obs, np.stack(states)
 
 
@@ -41,7 +41,7 @@ def test_options_hold_for_one_episode_then_the_constructor_config_returns():
         for _ in range(50):
             _, _, _, _, info = env.step(hover)
         np.testing.assert_array_equal(info["wind"], [0.0, 5.0, 0.0])
-        assert env.sim.world_velocity[1] > 0.3          # blown along +y by the episode's wind
+        assert env.sim.vel[0, 1] > 0.3          # blown along +y by the episode's wind
         # The next reset without options is the constructor's configuration again, bit for bit.
         obs2, again = _rollout(env, seed=0)
         assert env.episode_config is env.config
@@ -58,10 +58,10 @@ def test_an_episode_wind_is_built_once_per_spec_and_replays_with_its_seed():
     try:
         dryden = {"type": "dryden", "mean_speed": 7.0}
         _, first = _rollout(env, 20, seed=2, options={"wind": dryden})
-        field = env.sim.wind
+        field = env.wind
         _rollout(env, 5, seed=3, options={"wind": "none"})
         _, again = _rollout(env, 20, seed=2, options={"wind": dict(dryden)})
-        assert env.sim.wind is field                  # reused, not rebuilt ...
+        assert env.wind is field                  # reused, not rebuilt ...
         np.testing.assert_array_equal(again, first)   # ... and reseeded: the same gusts
     finally:
         env.close()
@@ -97,13 +97,13 @@ def test_bad_option_values_are_refused_with_the_constructors_message(surface_env
     env = surface_env
     env.reset(seed=0)
     env.step(env.scaling.hover_action())
-    t = env.sim.time
+    t = env.sim.time[0]
     with pytest.raises(ValueError) as at_reset:
         env.reset(seed=1, options={key: value})
     assert str(at_reset.value) == str(at_make.value)
     assert "\n" not in str(at_reset.value)
     # refused before anything changed: the running episode goes on
-    assert env.sim.time == t and env.episode_config is env.config
+    assert env.sim.time[0] == t and env.episode_config is env.config
     env.step(env.scaling.hover_action())
 
 
@@ -140,11 +140,31 @@ def test_empty_options_are_the_plain_reset():
         env.close()
 
 
-def test_vector_env_refuses_reset_options_in_one_line():
-    env = gym.make_vec("WindTurbineInspection-Surface-v0", num_envs=2, vectorization_mode="vector_entry_point")
+def test_vector_env_reset_options_fly_drone_i_as_the_single_env_then_autoresets_use_the_constructor():
+    opts = {"wind": {"type": "constant", "velocity": [0.0, 3.0, 0.0]}, "start_offset": (0.0, 0.0, 2.0)}
+    venv = gym.make_vec("WindTurbineInspection-Surface-v0", num_envs=2, vectorization_mode="vector_entry_point",
+                        time_limit_s=0.5, wind="none")
+    singles = [gym.make("WindTurbineInspection-Surface-v0", time_limit_s=0.5, wind="none").unwrapped for _ in range(2)]
     try:
-        with pytest.raises(ValueError, match=r"not supported by the vector env .*\['wind'\]") as e:
-            env.reset(seed=0, options={"wind": "none"})
+        vobs, _ = venv.reset(seed=5, options=opts)
+        for i, env in enumerate(singles):
+            obs, _ = env.reset(seed=5 + i, options=opts)
+            np.testing.assert_array_equal(vobs["position"][i], obs["position"])
+        hover = np.tile(singles[0].scaling.hover_action(), (2, 1)).astype(np.float32)
+        for _ in range(60):          # past the 0.5 s limit: every drone resets once on its own
+            vobs, _, _, vtrunc, vinfo = venv.step(hover)
+            for i, env in enumerate(singles):
+                obs, _, _, trunc, info = env.step(hover[i])
+                if trunc:
+                    obs, _ = env.reset()          # without options: the constructor's configuration
+                np.testing.assert_array_equal(vobs["position"][i], obs["position"])
+                assert vtrunc[i] == trunc
+        assert venv.unwrapped.world.episode[0] is venv.unwrapped.config
+        assert np.all(vinfo["wind"] == 0.0)        # the autoreset episode flies the constructor's still air
+        with pytest.raises(ValueError, match=r"unknown reset option.*\['x'\]") as e:
+            venv.reset(seed=0, options={"x": 1})
         assert "\n" not in str(e.value)
     finally:
-        env.close()
+        venv.close()
+        for env in singles:
+            env.close()

@@ -20,9 +20,9 @@ def test_offset_moves_the_start_and_the_drone_still_faces_the_point():
         np.testing.assert_allclose(o1["position"] - o0["position"], [3.0, -2.0, 30.0], atol=1e-5)
         np.testing.assert_array_equal(i1["ideal_position"], i0["ideal_position"])
         # yaw faces the inspection point from the offset start (horizontally)
-        q = moved.sim.state[6:10]
+        q = moved.sim.state[0, 6:10]
         yaw = 2.0 * np.arctan2(q[2], q[3])
-        a = o1["point"] - moved.sim.state[0:3]
+        a = o1["point"] - moved.sim.state[0, 0:3]
         assert abs(np.angle(np.exp(1j * (yaw - np.arctan2(a[1], a[0]))))) < 1e-5
         # deterministic: the same start on every reset and every seed
         o2, _ = moved.reset(seed=5)

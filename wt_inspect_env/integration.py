@@ -2,7 +2,7 @@
 
 :class:`DroneIntegrator` is the one stepping loop of both simulators (the single
 :class:`~wt_inspect_env.sim.QuadrotorSim` is its ``n = 1`` case, the batched
-:class:`~wt_inspect_env.vector.sim.BatchedQuadrotorSim` any ``n``). Each control step it splits
+:class:`~wt_inspect_env.batched_sim.BatchedQuadrotorSim` any ``n``). Each control step it splits
 the drones in two:
 
 * **free** drones - those that provably cannot touch the ground or their turbine before the step

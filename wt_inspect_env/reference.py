@@ -211,106 +211,245 @@ class InspectionReference:
         f = check_positive("reference start_fraction", start_fraction, allow_zero=True)
         if f >= 1.0:
             raise ValueError(f"reference start_fraction must be below 1, got {start_fraction!r}")
-        self._run = 0
-        self._tau = f * self._runs[0].length
-        self._time = 0.0
-        self._holding = False
-        self._hold_elapsed = 0.0
-        self._done = False
-        self._release = False
-        return self._sample(0.0, float("nan"), hold_started=False, phase_changed=False)
+        if not hasattr(self, "_batch"):
+            self._batch = BatchedReference(self, 1)     # the stepping: a batch of one, one implementation
+        self._batch.reset(0, f)
+        return self._row()
 
     def release_hold(self) -> None:
         """End a phase-change hold now (needed when ``phase_hold_time`` is None)."""
-        if self._holding:
-            self._release = True
+        self._batch.release_hold(0)
 
     def ideal_position(self) -> np.ndarray:
         """The current ideal stand-off pose."""
-        return self._ideal.copy()
+        return self._batch.ideal[0].copy()
 
     def step(self, dt: float, drone_position=None) -> ReferenceSample:
         """Advance by ``dt`` seconds given the drone's current position (needed in closed loop)."""
         dt = check_positive("reference dt", dt)
-        lag = float("nan")
         if drone_position is not None:
-            try:
-                x0, x1, x2 = (float(v) for v in drone_position)
-            except (TypeError, ValueError):
-                check_array("drone_position", drone_position, (3,))
-                raise
-            q = self._ideal
-            e0, e1, e2 = x0 - q[0], x1 - q[1], x2 - q[2]
-            lag = math.sqrt(e0 * e0 + e1 * e1 + e2 * e2)   # products, as the batched reference
-            if not math.isfinite(lag):
-                check_array("drone_position", drone_position, (3,))
+            x = check_array("drone_position", drone_position, (3,))
         elif self._closed:
             raise ValueError("drone_position is required in closed_loop mode, got None")
-        self._time += dt
-        if self._done:
-            return self._sample(0.0, lag, hold_started=False, phase_changed=False)
-        if self._holding:
-            self._hold_elapsed += dt
-            limit = self.config.phase_hold_time
-            if self._release or (limit is not None and self._hold_elapsed >= limit - 1e-12):
-                self._holding = False
-                self._release = False
-                self._run += 1
-                self._tau = 0.0
-                return self._sample(0.0, lag, hold_started=False, phase_changed=True)
-            return self._sample(0.0, lag, hold_started=False, phase_changed=False)
-        sigma = 1.0
-        if self._closed:
-            sigma = math.sqrt(min(1.0, max(0.0, (self.config.stop_threshold - lag) * self._inv_band)))
-        run = self._runs[self._run]
-        self._tau += sigma * self.config.speed * dt
-        hold_started = False
-        if self._tau >= run.length:
-            self._tau = run.length
-            if self._run == len(self._runs) - 1:
-                self._done = True
+        else:
+            x = np.full(3, np.nan)
+        self._batch.step(dt, x[None])
+        return self._row()
+
+    def _row(self) -> ReferenceSample:
+        b = self._batch.sample
+        return ReferenceSample(point=b.point[0].copy(), normal=b.normal[0].copy(), velocity=b.velocity[0].copy(),
+                               ideal_position=b.ideal_position[0].copy(), s=float(b.s[0]), phase=int(b.phase[0]),
+                               progress=float(b.progress[0]), speed_factor=float(b.speed_factor[0]),
+                               lag=float(b.lag[0]), time=float(b.time[0]), done=bool(b.done[0]),
+                               waiting_for_phase_change=bool(b.waiting_for_phase_change[0]),
+                               hold_started=bool(b.hold_started[0]), phase_changed=bool(b.phase_changed[0]))
+
+
+# ------------------------------------------------------------------------------------------ batched
+# The inspection reference of :mod:`~wt_inspect_env.reference` for N drones at once.
+#
+# :class:`BatchedReference` advances N independent inspection points along the *same* planned path
+# (the runs, their tau parametrisation and the stacked geometry come from one
+# :class:`~wt_inspect_env.reference.InspectionReference`, so the path data has one home). Its state is
+# arrays - run index, tau, hold clock, done - and :meth:`step` is the scalar ``step`` written over
+# them with the same floating-point operations in the same order; ``math.hypot`` (which NumPy's
+# ``hypot`` need not match to the last bit) is evaluated per drone. Drone ``i`` therefore follows the
+# scalar reference bit for bit (tested).
+
+
+@dataclass
+class BatchedSample:
+    """The reference of every drone at one control step (arrays over drones, like ReferenceSample)."""
+
+    point: np.ndarray            # (N, 3)
+    normal: np.ndarray           # (N, 3)
+    velocity: np.ndarray         # (N, 3)
+    ideal_position: np.ndarray   # (N, 3)
+    phase: np.ndarray            # (N,) int
+    progress: np.ndarray         # (N,)
+    done: np.ndarray             # (N,) bool
+    waiting_for_phase_change: np.ndarray   # (N,) bool
+    hold_started: np.ndarray     # (N,) bool
+    phase_changed: np.ndarray    # (N,) bool: first sample of a new phase
+    s: np.ndarray                # (N,) arc length along the planned path
+    speed_factor: np.ndarray     # (N,) sigma used on this step (0 while holding or done)
+    lag: np.ndarray              # (N,) distance to the ideal pose before the step (NaN if unknown)
+    time: np.ndarray             # (N,) time since reset [s]
+
+
+class BatchedReference:
+    """N inspection points on one path; see the module docstring."""
+
+    def __init__(self, reference: InspectionReference, n: int) -> None:
+        self.ref = reference
+        self.n = n
+        cfg = reference.config
+        self._runs = reference._runs
+        self._offsets = reference._run_offsets
+        self.total_length = reference.total_length
+        self._closed = cfg.mode == "closed_loop"
+        self._inv_band = reference._inv_band
+        self._speed = cfg.speed
+        self._stop = cfg.stop_threshold
+        self._standoff = cfg.standoff
+        self._hold_limit = cfg.phase_hold_time
+        self.run = np.zeros(n, dtype=np.int64)
+        self.tau = np.zeros(n)
+        self.time = np.zeros(n)
+        self.holding = np.zeros(n, dtype=bool)
+        self.hold_elapsed = np.zeros(n)
+        self.done = np.zeros(n, dtype=bool)
+        self.release = np.zeros(n, dtype=bool)
+        self.ideal = np.zeros((n, 3))
+        self._sample = self._compute(np.arange(n), np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
+                                     np.full(n, math.nan))
+
+    @property
+    def config(self) -> ReferenceConfig:
+        return self.ref.config
+
+    @property
+    def sample(self) -> BatchedSample:
+        return self._sample
+
+    def reset(self, i: int, start_fraction: float = 0.0) -> None:
+        """Back to the start (or ``start_fraction`` of the first phase) for drone ``i``; the new
+        sample is in :attr:`sample`."""
+        self.run[i] = 0
+        self.tau[i] = start_fraction * self._runs[0].length
+        self.time[i] = 0.0
+        self.holding[i] = False
+        self.hold_elapsed[i] = 0.0
+        self.done[i] = False
+        self.release[i] = False
+        idx = np.array([i])
+        self._write(idx, self._compute(idx, np.zeros(1), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool),
+                                       np.full(1, math.nan)))
+
+    def release_hold(self, i: int) -> None:
+        """End drone ``i``'s phase-change hold at its next step (needed when ``phase_hold_time`` is None)."""
+        if self.holding[i]:
+            self.release[i] = True
+
+    def step(self, dt: float, positions: np.ndarray) -> BatchedSample:
+        """Advance every drone's point by ``dt`` given the drone positions (N, 3) (closed loop)."""
+        q = self.ideal
+        d0, d1, d2 = positions[:, 0] - q[:, 0], positions[:, 1] - q[:, 1], positions[:, 2] - q[:, 2]
+        lag = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+        self.time += dt
+        done0, hold0 = self.done.copy(), self.holding.copy()
+        sigma = np.zeros(self.n)
+        hold_started = np.zeros(self.n, dtype=bool)
+        phase_changed = np.zeros(self.n, dtype=bool)
+        # Holding drones: count the hold, then release into the next run.
+        h = np.flatnonzero(hold0 & ~done0)
+        if len(h):
+            self.hold_elapsed[h] += dt
+            due = self.release[h]
+            if self._hold_limit is not None:
+                due = due | (self.hold_elapsed[h] >= self._hold_limit - 1e-12)
+            rel = h[due]
+            self.holding[rel] = False
+            self.release[rel] = False
+            self.run[rel] += 1
+            self.tau[rel] = 0.0
+            phase_changed[rel] = True
+        # Moving drones.
+        m = np.flatnonzero(~hold0 & ~done0)
+        if len(m):
+            if self._closed:
+                sm = np.sqrt(np.minimum(1.0, np.maximum(0.0, (self._stop - lag[m]) * self._inv_band)))
             else:
-                self._holding = True
-                self._hold_elapsed = 0.0
-                hold_started = True
-        return self._sample(sigma, lag, hold_started=hold_started, phase_changed=False)
+                sm = np.ones(len(m))
+            sigma[m] = sm
+            self.tau[m] += sm * self._speed * dt
+            lengths = np.array([r.length for r in self._runs])[self.run[m]]
+            end = self.tau[m] >= lengths
+            if end.any():
+                e = m[end]
+                self.tau[e] = lengths[end]
+                last = self.run[e] == len(self._runs) - 1
+                self.done[e[last]] = True
+                hs = e[~last]
+                self.holding[hs] = True
+                self.hold_elapsed[hs] = 0.0
+                hold_started[hs] = True
+        all_idx = np.arange(self.n)
+        self._write(all_idx, self._compute(all_idx, sigma, hold_started, phase_changed, lag))
+        return self._sample
 
     # ------------------------------------------------------------------------------------------
-    def _interp(self, run: _Run, k: int, frac: float):
-        if len(run.tau) == 1:
-            g = run.geom[0].copy()
-        else:
-            g0 = run.geom[k]
-            g = g0 + frac * (run.geom[k + 1] - g0)
-        p = g[0:3]
-        n = g[3:6]
-        nn = math.sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
-        n = n / nn if nn > 1e-9 else run.normals[k].copy()
-        hx, hy = g[6], g[7]
-        hn = math.hypot(hx, hy)
-        if hn > 1e-9:
-            hx, hy = hx / hn, hy / hn
-        else:
-            hx, hy = run.hdir[k, 0], run.hdir[k, 1]
-        d = self.config.standoff
-        ideal = np.array([p[0] + d * hx, p[1] + d * hy, p[2]])
-        return p, n, float(g[9]), ideal
+    def _write(self, idx: np.ndarray, s: BatchedSample) -> None:
+        if len(idx) == self.n:
+            self._sample = s
+            self.ideal = s.ideal_position
+            return
+        t = self._sample
+        for name in ("point", "normal", "velocity", "ideal_position", "phase", "progress", "done",
+                     "waiting_for_phase_change", "hold_started", "phase_changed", "s", "speed_factor", "lag", "time"):
+            getattr(t, name)[idx] = getattr(s, name)
+        self.ideal = t.ideal_position
 
-    def _sample(self, sigma: float, lag: float, *, hold_started: bool, phase_changed: bool) -> ReferenceSample:
-        run = self._runs[self._run]
-        k, frac = run.locate(self._tau)
-        p, n, s, ideal = self._interp(run, k, frac)
-        self._ideal = ideal
-        moving = not (self._holding or self._done) and len(run.tau) > 1
-        if moving and sigma > 0.0:
-            velocity = (sigma * self.config.speed) * run.dp_dtau[k]
+    def _compute(self, idx: np.ndarray, sigma: np.ndarray, hold_started: np.ndarray, phase_changed: np.ndarray,
+                 lag: np.ndarray) -> BatchedSample:
+        """Locate, interpolate, velocity and progress for drones ``idx`` (``sigma``, the flags and
+        ``lag`` are rows for those drones)."""
+        k_n = len(idx)
+        point, normal = np.empty((k_n, 3)), np.empty((k_n, 3))
+        arc, factor = np.empty(k_n), np.zeros(k_n)
+        velocity, ideal = np.zeros((k_n, 3)), np.empty((k_n, 3))
+        phase = np.empty(k_n, dtype=np.int64)
+        run_of = self.run[idx]
+        tau = self.tau[idx]
+        holding, done = self.holding[idx], self.done[idx]
+        d = self._standoff
+        for r_i in np.unique(run_of).tolist():
+            sel = np.flatnonzero(run_of == r_i)
+            run = self._runs[r_i]
+            t = tau[sel]
+            n_tau = len(run.tau)
+            if n_tau == 1:
+                k = np.zeros(len(sel), dtype=np.int64)
+                g = np.repeat(run.geom[0:1], len(sel), axis=0)
+                frac = np.zeros(len(sel))
+            else:
+                k = np.searchsorted(run.tau, t, side="right") - 1
+                k = np.minimum(np.maximum(k, 0), n_tau - 2)
+                dk = run.dtau[k]
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    frac = np.where(dk <= 0, 0.0, np.minimum(1.0, np.maximum(0.0, (t - run.tau[k]) / dk)))
+                g0 = run.geom[k]
+                g = g0 + frac[:, None] * (run.geom[k + 1] - g0)
+            nv = g[:, 3:6]
+            nn = np.sqrt(nv[:, 0] * nv[:, 0] + nv[:, 1] * nv[:, 1] + nv[:, 2] * nv[:, 2])
+            good = nn > 1e-9
+            nrm = np.where(good[:, None], nv / np.where(good, nn, 1.0)[:, None], run.normals[k])
+            hx, hy = g[:, 6].copy(), g[:, 7].copy()
+            hn = np.array([math.hypot(a, b) for a, b in zip(hx.tolist(), hy.tolist())])
+            okh = hn > 1e-9
+            safe = np.where(okh, hn, 1.0)
+            hx = np.where(okh, hx / safe, run.hdir[k, 0])
+            hy = np.where(okh, hy / safe, run.hdir[k, 1])
+            point[sel] = g[:, 0:3]
+            normal[sel] = nrm
+            ideal[sel, 0] = g[:, 0] + d * hx
+            ideal[sel, 1] = g[:, 1] + d * hy
+            ideal[sel, 2] = g[:, 2]
+            phase[sel] = run.phase
+            arc[sel] = g[:, 9]
+            moving = ~(holding[sel] | done[sel]) & (n_tau > 1)
+            sg = sigma[sel]
+            factor[sel] = np.where(moving, sg, 0.0)
+            mv = moving & (sg > 0.0)
+            if mv.any():
+                velocity[sel[mv]] = (sg[mv] * self._speed)[:, None] * run.dp_dtau[k[mv]]
+        done_len = self._offsets[run_of] + tau
+        if self.total_length > 0:
+            progress = np.minimum(1.0, done_len / self.total_length)
         else:
-            velocity = np.zeros(3)
-            sigma = sigma if moving else 0.0
-        done_len = self._run_offsets[self._run] + self._tau
-        progress = 1.0 if self.total_length <= 0 and self._done else (
-            done_len / self.total_length if self.total_length > 0 else 0.0)
-        return ReferenceSample(point=p, normal=n, velocity=velocity, ideal_position=ideal, s=s, phase=run.phase,
-                               progress=float(min(1.0, progress)), speed_factor=float(sigma), lag=lag,
-                               time=self._time, done=self._done, waiting_for_phase_change=self._holding,
-                               hold_started=hold_started, phase_changed=phase_changed)
+            progress = np.where(done, 1.0, 0.0)
+        return BatchedSample(point=point, normal=normal, velocity=velocity, ideal_position=ideal, phase=phase,
+                             progress=progress, done=done.copy(), waiting_for_phase_change=holding.copy(),
+                             hold_started=hold_started.copy(), phase_changed=phase_changed.copy(), s=arc,
+                             speed_factor=factor, lag=np.asarray(lag, dtype=float).copy(), time=self.time[idx].copy())

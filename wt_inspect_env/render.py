@@ -68,7 +68,7 @@ def camera_images(sim, camera, state: np.ndarray, resolution: tuple[int, int], f
                   rgb: bool = True, depth: bool = True) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The gimbal camera's view from the drone state ``state`` [p, v_body, q]: ``rgb`` (h, w, 3)
     uint8 and ``depth`` (h, w) float32 [m, along the optical axis] (``None`` where not asked for).
-    ``sim``: the :class:`~wt_inspect_env.sim.QuadrotorSim` (only the obstacle chunks in the
+    ``sim``: the world's simulator (drone 0's view; only the obstacle chunks in the
     frustum are drawn - the same image, a fraction of the triangles); ``camera``: the env's
     :class:`~wt_inspect_env.camera.GimbalCamera`."""
     sim.sync_scene()                       # the drone's body where the drone is (the flight core flies it)
@@ -91,7 +91,7 @@ def render_views(env: "WindTurbineInspectionEnv") -> np.ndarray:
     """(240, 640, 3) uint8: onboard camera (left) and chase view (right)."""
     env.sim.show_obstacle_chunks(True)     # the chase view sees the whole turbine
     env.sim.sync_scene()                   # ... and the drone's body where the drone is
-    state = env.sim.state
+    state = env.sim.state[0]
     origin, R = env.camera.pose(state[0:3], state[6:10])
     fwd, down = R[:, 2], R[:, 1]
     fov_v = env.config.camera.fov_deg[1]

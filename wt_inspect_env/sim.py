@@ -42,6 +42,7 @@ from .pybullet_refs import call_releasing
 from .integration import INTEGRATORS, DroneIntegrator
 from .proximity import MeshProximity
 from .rate_control import Mixer, RateGains
+from .scene_visuals import create_chunks, load_texture, show_chunks
 from .validation import check_array, check_field_types, check_positive
 from .wind import WindField, make_wind
 
@@ -197,7 +198,6 @@ DRONE_COLLISION_GROUP = 4
 RAY_MASK_WITHOUT_DRONE = 0xFFFF & ~DRONE_COLLISION_GROUP   # rays that do not see the drone itself
 _PARKED = (0.0, 0.0, -1.0e5)      # where unused obstacle bodies wait (far below the ground)
 _MAX_CACHED_OBSTACLES = 4
-_CHUNK_M = 6.0                    # grid cell [m] of the textured obstacle's drawn chunks
 
 
 def checked_plant(params: QuadrotorParams, plant: QuadrotorParams | None,
@@ -429,41 +429,12 @@ class QuadrotorSim:
             self._obstacle_cache[id(key)] = (self._obstacle, shape, key, (verts, idx))
 
     def _create_chunks(self, v: np.ndarray, f: np.ndarray) -> dict[str, Any]:
-        """Visual-only bodies drawing the obstacle mesh textured, one per ``_CHUNK_M`` grid cell of
-        the triangle centroids (vertex normals from the whole mesh, so shading has no seams)."""
-        from .texture import load_texture, vertex_normals
-        cid, tex = self._client, self.obstacle_texture
         if self._texture_id < 0:
-            self._texture_id = load_texture(cid, tex.image())
-        normals, uvs = vertex_normals(v, f), tex.uvs(v)
-        cell = np.floor(v[f].mean(axis=1) / _CHUNK_M).astype(np.int64)
-        _, group = np.unique(cell, axis=0, return_inverse=True)
-        bodies, centers, radii = [], [], []
-        for g in range(int(group.max()) + 1):
-            tri = f[group.ravel() == g]
-            used, local = np.unique(tri.ravel(), return_inverse=True)
-            visual = call_releasing(p.createVisualShape, p.GEOM_MESH, vertices=v[used].tolist(), indices=local.tolist(),
-                                    uvs=uvs[used].tolist(), normals=normals[used].tolist(), physicsClientId=cid)
-            body = p.createMultiBody(0.0, -1, baseVisualShapeIndex=visual, physicsClientId=cid)
-            p.changeVisualShape(body, -1, textureUniqueId=self._texture_id, rgbaColor=(1, 1, 1, 1),
-                                physicsClientId=cid)
-            lo, hi = v[used].min(axis=0), v[used].max(axis=0)
-            bodies.append(body)
-            centers.append(0.5 * (lo + hi))
-            radii.append(0.5 * float(np.linalg.norm(hi - lo)))
-        return {"bodies": bodies, "centers": np.array(centers), "radii": np.array(radii),
-                "shown": np.ones(len(bodies), dtype=bool)}
+            self._texture_id = load_texture(self._client, self.obstacle_texture.image())
+        return create_chunks(self._client, self._texture_id, self.obstacle_texture, v, f)
 
     def _show_chunks(self, chunks: dict[str, Any] | None, mask: Any) -> None:
-        """Show the chunks where ``mask`` (a bool or (K,) bools) is true, hide the others; only the
-        chunks whose state changes are touched."""
-        if chunks is None:
-            return
-        want = np.broadcast_to(np.asarray(mask, dtype=bool), chunks["shown"].shape)
-        for k in np.flatnonzero(want != chunks["shown"]).tolist():
-            p.changeVisualShape(chunks["bodies"][k], -1, rgbaColor=(1, 1, 1, 1.0 if want[k] else 0.0),
-                                physicsClientId=self._client)
-        chunks["shown"] = want.copy()
+        show_chunks(self._client, chunks, mask)
 
     @property
     def obstacle_chunks(self) -> tuple[np.ndarray, np.ndarray] | None:

@@ -47,6 +47,7 @@ from wt_inspect.evaluation.runner import RunResult, fly, make_spec, save_run
 from wt_inspect.evaluation.scenarios import SCENARIOS, env_options
 from wt_inspect_env.commands.args import json_object
 from wt_inspect_env.env import WindTurbineInspectionEnv
+from wt_inspect_env.hooks import TaskHooks
 
 from .frames import F_FRD_FLU, Site, SiteFrame, quat_wxyz_to_matrix
 from .link import OFFBOARD_MODE, LinkFaults
@@ -100,10 +101,11 @@ class FlyConfig:
 
 
 class VehicleSim:
-    """Stands in for the environment's :class:`~wt_inspect_env.sim.QuadrotorSim`: ``step`` sends
-    the command to the vehicle and waits for the next control tick; ``state`` is the vehicle's
-    estimate in the project's frames. What it does not replace (the turbine's PyBullet world used
-    for the camera's occlusion rays, obstacle swaps at the rotor turn) is the real simulator's.
+    """Stands in for the simulator of the environment's world (a world of one drone, so the arrays
+    have one row): ``step`` sends the command to the vehicle and waits for the next control tick;
+    ``state`` is the vehicle's estimate in the project's frames. What it does not replace (the
+    turbine's PyBullet world used for the camera's occlusion rays, the geometry swap at the rotor
+    turn) is the real simulator's.
     """
 
     def __init__(self, sim: Any, vehicle: Vehicle, frame: SiteFrame, thrust: ThrustMap, fence: Geofence,
@@ -140,34 +142,34 @@ class VehicleSim:
         self._state, self._rates = x, F_FRD_FLU @ s.rates_frd
         self._v_world = self.frame.vector_to_project(s.velocity_ned)
 
-    # ---------------------------------------------------------------- the QuadrotorSim interface used
+    # ---------------------------------------------------------------- the world's simulator interface
     @property
     def state(self) -> np.ndarray:
-        return self._state.copy()
+        return self._state[None].copy()
 
     @property
     def body_rates(self) -> np.ndarray:
-        return self._rates.copy()
+        return self._rates[None].copy()
 
     @property
     def world_velocity(self) -> np.ndarray:
         return self._v_world.copy()
 
     @property
-    def time(self) -> float:
-        return self._steps * self.dt
+    def time(self) -> np.ndarray:
+        return np.array([self._steps * self.dt])
 
     @property
-    def wind_velocity(self) -> np.ndarray:
-        return np.full(3, np.nan)          # not measured on a vehicle
+    def last_wind(self) -> np.ndarray:
+        return np.full((1, 3), np.nan)          # not measured on a vehicle
 
     @property
-    def in_collision(self) -> bool:
+    def in_collision(self) -> np.ndarray:
         """No contact sensing on a vehicle: the centre within the drone's radius of the mesh or the ground."""
-        return (self.fence.last_clearance < self.collision_radius
-                or bool(self._state[2] < self.collision_radius))
+        return np.array([self.fence.last_clearance < self.collision_radius
+                         or bool(self._state[2] < self.collision_radius)])
 
-    def reset(self, state: Any = None, body_rates: Any = None, seed: Any = None) -> None:
+    def reset_drone(self, i: int, state: Any = None) -> None:
         """Take the vehicle's current state (``state`` - the planned start - is where it should be)."""
         s = self.vehicle.state()
         if s is None:
@@ -177,7 +179,11 @@ class VehicleSim:
         self._steps = 0
         self._t0 = time.monotonic()
 
-    def step(self, command: Any) -> None:
+    def step(self, commands: Any) -> None:
+        """Send the one drone's command (a row ``[p, q, r, T]``) and wait for the next tick."""
+        self._step(np.asarray(commands, dtype=float).reshape(-1))
+
+    def _step(self, command: Any) -> None:
         v = self.vehicle
         cmd = np.asarray(command, dtype=float)
         if v.abort_reason is None:
@@ -211,23 +217,32 @@ class VehicleSim:
             v.abort(reason)
 
 
+class VehicleHooks(TaskHooks):
+    """The inspection task flown on a vehicle: an abort raised on the vehicle ends the episode as
+    ``hold:<reason>``; otherwise the task's own terminations."""
+
+    def terminations(self, world: Any, state: np.ndarray, finite: np.ndarray, collision: np.ndarray) -> np.ndarray:
+        vehicle = getattr(world.sim, "vehicle", None)
+        reason = vehicle is not None and vehicle.abort_reason
+        if reason:
+            return np.array([self.code_for(f"hold:{reason}")])
+        return super().terminations(world, state, finite, collision)
+
+
 class VehicleInspectionEnv(WindTurbineInspectionEnv):
-    """The inspection environment flown on a vehicle: :meth:`attach` swaps in a :class:`VehicleSim`;
-    an abort raised on the vehicle ends the episode as ``hold:<reason>`` (the ``_termination`` hook)."""
+    """The inspection environment flown on a vehicle: :meth:`attach` swaps in a :class:`VehicleSim`
+    as its world's simulator (see :class:`VehicleHooks` for how an abort ends the episode)."""
+
+    def __init__(self, **options: Any) -> None:
+        super().__init__(hooks=VehicleHooks(), **options)
 
     def attach(self, vehicle_sim: VehicleSim) -> None:
-        self.sim = vehicle_sim      # type: ignore[assignment]
-
-    def _termination(self, state: np.ndarray, finite: bool, collision: bool) -> str | None:
-        reason = getattr(self.sim, "vehicle", None) and self.sim.vehicle.abort_reason
-        if reason:
-            return f"hold:{reason}"
-        return super()._termination(state, finite, collision)
+        self.world.sim = self.sim = vehicle_sim      # type: ignore[assignment]
 
     def close(self) -> None:
         sim = self.sim
         if isinstance(sim, VehicleSim):
-            self.sim = sim._sim
+            self.world.sim = self.sim = sim._sim
         super().close()
 
 

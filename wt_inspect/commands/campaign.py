@@ -176,7 +176,7 @@ def clear_start(env: Any, spec: RunSpec) -> tuple[list[float], int]:
     rng = np.random.default_rng(spec.seed)
     for k in range(MAX_START_REDRAWS + 1):
         u.reset(seed=spec.seed, options={"start_offset": offset.tolist()})
-        if float(near.distance(u.sim.state[None, 0:3])[0]) >= need:
+        if float(near.distance(u.sim.state[0:1, 0:3])[0]) >= need:
             return offset.tolist(), k
         v = rng.normal(size=3)
         v[2] = abs(v[2])

@@ -266,7 +266,7 @@ def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mappi
     b["heading_body"][i] = h_body
     b["inspecting"][i] = not info["waiting_for_phase_change"]
     b["phase"][i] = info["phase"]
-    b["collision"][i] = env.sim.in_collision
+    b["collision"][i] = bool(env.sim.in_collision[0])
     b["coverage"][i] = info["coverage"]
     b["action"][i] = np.nan
     b["solve_ms"][i] = np.nan
@@ -362,7 +362,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
     arrays: dict[str, np.ndarray] = {}
     if record:
         arrays = rec.arrays(spec.record_every)
-        arrays["coverage_counts"] = np.asarray(u.coverage.counts, dtype=np.int32)
+        arrays["coverage_counts"] = np.asarray(u.coverage_counts, dtype=np.int32)
         arrays["inspected"] = np.asarray(u.mission.inspected, dtype=np.int32)
         arrays["blade_triangles"] = np.stack([t.blade_vertices for t in u.mission.turbines]).astype(np.float32)
         t0 = u.mission.turbines[0]

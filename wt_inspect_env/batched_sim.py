@@ -15,18 +15,29 @@ PyBullet. The wind stays per drone (each owns an arbitrary, seeded
 """
 from __future__ import annotations
 
+import os
+import sys
 from typing import Any, Sequence
 
 import numpy as np
 import pybullet as p
 
-from ..quadrotor import QuadrotorParams
-from ..pybullet_refs import call_releasing
-from ..integration import DroneIntegrator
-from ..proximity import MeshProximity
-from ..sim import (DRONE_COLLISION_GROUP, SimConfig, _mesh_arrays, checked_plant, checked_state, create_drone_body,
-                   new_client, place_body)
-from ..wind import WindField, wind_velocities
+from .integration import DroneIntegrator
+from .proximity import MeshProximity
+from .pybullet_refs import call_releasing
+from .quadrotor import QuadrotorParams
+from .scene_visuals import create_chunks, load_texture, show_chunks
+from .sim import (
+    DRONE_COLLISION_GROUP,
+    SimConfig,
+    _mesh_arrays,
+    checked_plant,
+    checked_state,
+    create_drone_body,
+    new_client,
+    place_body,
+)
+from .wind import WindField, wind_velocities
 
 GROUND_GROUP = 1
 _GEOMETRY_GROUP0 = 16        # geometry g is in group 16 << g (phase 1, phase 2, ...)
@@ -65,7 +76,8 @@ class BatchedQuadrotorSim:
     """
 
     def __init__(self, params: QuadrotorParams, config: SimConfig, n: int,
-                 geometries: Sequence[Any] = (), winds: Sequence[WindField | None] | None = None) -> None:
+                 geometries: Sequence[Any] = (), winds: Sequence[WindField | None] | None = None,
+                 obstacle_texture: Any = None) -> None:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
             raise ValueError(f"num_envs must be a positive integer, got {n!r}")
         if len(geometries) > _MAX_GEOMETRIES:
@@ -80,14 +92,21 @@ class BatchedQuadrotorSim:
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
         self._client = -1
-        self._build_world(geometries)
+        self._gui = False
+        self._integrator: DroneIntegrator | None = None
+        # Drawing (a world of one drone renders): the turbine of drone 0's geometry is visible,
+        # textured in chunks with obstacle_texture, plain grey without; the others are hidden.
+        self.obstacle_texture = obstacle_texture
+        self._render = n == 1
+        self.geometry = np.zeros(n, dtype=np.int64)
+        self._meshes = [_mesh_arrays(mesh) for mesh in geometries]
+        self._build_world(p.DIRECT)
         core = self._integrator.core
         # Views of the flight core's arrays (world frame), valid for the simulator's lifetime.
         self.pos, self.vel, self.omega, self.quat = core.pos, core.vel, core.omega, core.quat
         self.steps = np.zeros(n, dtype=np.int64)
         self.in_collision = np.zeros(n, dtype=bool)
         self.last_wind = core.winds
-        self.geometry = np.zeros(n, dtype=np.int64)
 
     @property
     def f(self) -> np.ndarray:
@@ -118,9 +137,9 @@ class BatchedQuadrotorSim:
                          physicsClientId=self._client)
 
     # ------------------------------------------------------------------ world
-    def _build_world(self, geometries: Sequence[Any]) -> None:
+    def _build_world(self, mode: int) -> None:
         params, config, n = self.params, self.config, self.n
-        cid = self._client = new_client(p.DIRECT, self.physics_dt)
+        cid = self._client = new_client(mode, self.physics_dt)
         try:
             self.ground_id = -1
             if config.ground:
@@ -129,15 +148,32 @@ class BatchedQuadrotorSim:
                                                    physicsClientId=cid)
                 p.setCollisionFilterGroupMask(self.ground_id, -1, GROUND_GROUP, 0xFFFF, physicsClientId=cid)
             self.geometry_ids: list[int] = []
-            self._proximity: list[MeshProximity] = []
-            for g, mesh in enumerate(geometries):
-                verts, idx = _mesh_arrays(mesh)
+            self._chunks: list[dict[str, Any] | None] = []
+            texture_id = -1
+            new_proximity = not hasattr(self, "_proximity")
+            if new_proximity:
+                self._proximity: list[MeshProximity] = []
+            for g, (verts, idx) in enumerate(self._meshes):
                 shape = call_releasing(p.createCollisionShape, p.GEOM_MESH, vertices=verts, indices=idx,
                                        flags=p.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=cid)
-                body = p.createMultiBody(0.0, shape, physicsClientId=cid)
+                chunks = None
+                if self._render and self.obstacle_texture is None:
+                    visual = call_releasing(p.createVisualShape, p.GEOM_MESH, vertices=verts, indices=idx,
+                                            rgbaColor=(0.85, 0.85, 0.9, 1.0), physicsClientId=cid)
+                    body = p.createMultiBody(0.0, shape, baseVisualShapeIndex=visual, physicsClientId=cid)
+                else:
+                    body = p.createMultiBody(0.0, shape, physicsClientId=cid)
+                    if self._render:        # drawn as textured chunks, the collision body invisible
+                        p.changeVisualShape(body, -1, rgbaColor=(1, 1, 1, 0), physicsClientId=cid)
+                        if texture_id < 0:
+                            texture_id = load_texture(cid, self.obstacle_texture.image())
+                        chunks = create_chunks(cid, texture_id, self.obstacle_texture, np.asarray(verts),
+                                               np.asarray(idx).reshape(-1, 3))
                 p.setCollisionFilterGroupMask(body, -1, geometry_group(g), 0xFFFF, physicsClientId=cid)
                 self.geometry_ids.append(body)
-                self._proximity.append(MeshProximity(np.asarray(verts)[np.asarray(idx).reshape(-1, 3)]))
+                self._chunks.append(chunks)
+                if new_proximity:
+                    self._proximity.append(MeshProximity(np.asarray(verts)[np.asarray(idx).reshape(-1, 3)]))
             box = p.createCollisionShape(p.GEOM_BOX, halfExtents=list(params.collision_half_extents),
                                          physicsClientId=cid)
             self.body_ids: list[int] = []
@@ -146,14 +182,66 @@ class BatchedQuadrotorSim:
             self._drone_index = {b: i for i, b in enumerate(self.body_ids)}
             self._geometry_index = {b: g for g, b in enumerate(self.geometry_ids)}
             ground = config.ground_height if config.ground else None
-            self._integrator = DroneIntegrator(params, config, cid, self.body_ids, [self._mask(0)] * n, ground,
-                                               DRONE_COLLISION_GROUP)
+            if self._integrator is None:
+                self._integrator = DroneIntegrator(params, config, cid, self.body_ids,
+                                                   [self._mask(int(g)) for g in self.geometry], ground,
+                                                   DRONE_COLLISION_GROUP)
+            else:                             # enable_gui: the same drones in a new client
+                self._integrator.rebind(cid, self.body_ids)
             for i in range(n):
                 p.setCollisionFilterGroupMask(self.body_ids[i], -1, DRONE_COLLISION_GROUP, 0, physicsClientId=cid)
-                self._integrator.set_obstacle(i, self._proximity[0] if self._proximity else None)
+                self._integrator.set_obstacle(i, self._proximity[self.geometry[i]] if self._proximity else None)
+            self._show_geometry(int(self.geometry[0]))
         except BaseException:
             self.close()
             raise
+
+    def enable_gui(self) -> None:
+        """Move the world into a PyBullet GUI window (one per process; needs a display): the world
+        is rebuilt in a new GUI client, every drone keeps its state; :attr:`client` changes."""
+        if self._gui:
+            return
+        if sys.platform.startswith("linux") and not os.environ.get("DISPLAY"):
+            raise RuntimeError("enable_gui needs a display (DISPLAY is not set)")
+        plants, scales = list(self.plants), self.thrust_scales.copy()
+        p.disconnect(physicsClientId=self._client)
+        self._client = -1
+        self._build_world(p.GUI)
+        self._gui = True
+        for i, (plant, scale) in enumerate(zip(plants, scales)):
+            if plant is not self.params:
+                self.set_plant(i, plant, float(scale))
+        self._integrator.sync_bodies()
+
+    # ------------------------------------------------------------------ drawing (drone 0's view)
+    def _show_geometry(self, g: int) -> None:
+        """Draw geometry ``g`` only (what drone 0 flies in)."""
+        if not self._render:
+            return
+        for k, body in enumerate(self.geometry_ids):
+            if self._chunks[k] is None:
+                p.changeVisualShape(body, -1, rgbaColor=(0.85, 0.85, 0.9, 1.0 if k == g else 0.0),
+                                    physicsClientId=self._client)
+            else:
+                show_chunks(self._client, self._chunks[k], k == g)
+
+    @property
+    def obstacle_chunks(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(centres (K, 3), radii (K,)) of the bounding spheres of the drawn chunks of drone 0's
+        turbine (only with an ``obstacle_texture``; else ``None``)."""
+        chunks = self._chunks[int(self.geometry[0])] if self._chunks else None
+        return None if chunks is None else (chunks["centers"], chunks["radii"])
+
+    def show_obstacle_chunks(self, mask: Any = True) -> None:
+        """Draw only the chunks of drone 0's turbine where ``mask`` is true (e.g. those a camera's
+        frustum can see); ``True`` draws them all. Drawing only: collisions and rays are unaffected."""
+        if self._chunks:
+            show_chunks(self._client, self._chunks[int(self.geometry[0])], mask)
+
+    @property
+    def obstacle_id(self) -> int:
+        """PyBullet body of drone 0's turbine geometry (-1 without one)."""
+        return self.geometry_ids[int(self.geometry[0])] if self.geometry_ids else -1
 
     def _mask(self, g: int) -> int:
         return GROUND_GROUP | (geometry_group(g) if self.geometry_ids else 0)
@@ -171,6 +259,8 @@ class BatchedQuadrotorSim:
             self._integrator.set_mask(i, self._mask(g))
             self._integrator.set_obstacle(i, self._proximity[g])
             self.geometry[i] = g
+            if i == 0:
+                self._show_geometry(g)
 
     @property
     def client(self) -> int:
@@ -257,6 +347,8 @@ class BatchedQuadrotorSim:
         self.in_collision[:] = False
         integ.step(self._mark_contacts)
         self.steps += 1
+        if self._gui:
+            integ.sync_bodies()
 
     def _mark_contacts(self, i: int, substep: int, cps) -> None:
         """The integrator's contact sink: drone ``i`` touched the ground or its own geometry (a
