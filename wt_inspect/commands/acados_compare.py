@@ -123,8 +123,10 @@ def record(spec: Any, steps: int) -> tuple[list[dict[str, np.ndarray]], dict[str
     return observations, builders
 
 
-def replay(policy: Any, observations: list[dict[str, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    """Per-step wall time [ms] of ``policy.act`` over ``observations`` and the actions."""
+def replay(policy: Any, observations: list[dict[str, np.ndarray]],
+           stats: list[tuple[float, float, int]] | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-step wall time [ms] of ``policy.act`` over ``observations`` and the actions; ``stats``
+    (a list) receives (preparation [ms], feedback QP [ms], QP iterations) of every step."""
     policy.reset()
     times, actions = np.empty(len(observations)), np.empty((len(observations), 4))
     clock = time.perf_counter
@@ -132,6 +134,9 @@ def replay(policy: Any, observations: list[dict[str, np.ndarray]]) -> tuple[np.n
         t0 = clock()
         actions[i] = policy.act(obs)
         times[i] = (clock() - t0) * 1e3
+        if stats is not None:
+            st = policy.last_stats
+            stats.append((st.prepare_ms, st.feedback_ms, st.qp_iterations))
     return times, actions
 
 
@@ -155,7 +160,8 @@ def compare(python: str, spec: Any, steps: int = 500, warmup: int = 20, rounds: 
         out["acados_build_s"] = time.perf_counter() - t0
         clearance = build["clearance"]()
         for _ in range(rounds):
-            t_ours, a_ours = replay(ours, observations)
+            qp: list[tuple[float, float, int]] = []
+            t_ours, a_ours = replay(ours, observations, qp)
             peer = run_peer(python, {"mode": "replay", "ocp": ocp, "build_dir": build_dir,
                                      "observations": peer_obs})
             t_cl, _ = replay(clearance, observations)
@@ -168,6 +174,11 @@ def compare(python: str, spec: Any, steps: int = 500, warmup: int = 20, rounds: 
             r["ratio_median"] = r["ours"]["median_ms"] / r["acados"]["median_ms"]
             r["ratio_p99"] = r["ours"]["p99_ms"] / r["acados"]["p99_ms"]
             r["clearance_cost_ms"] = r["ours_clearance"]["median_ms"] - r["ours"]["median_ms"]
+            q = np.asarray(qp, dtype=float)[w]
+            r["ours_qp_ms"], r["ours_prepare_ms"] = float(np.median(q[:, 1])), float(np.median(q[:, 0]))
+            r["ours_qp_iterations"] = float(np.mean(q[:, 2]))
+            r["acados_qp_ms"] = float(np.median(np.asarray(peer["qp_ms"], dtype=float)[w]))
+            r["acados_qp_iterations"] = float(np.mean(np.asarray(peer["qp_iterations"], dtype=float)[w]))
             out["rounds"].append(r)
     R = out["rounds"]
 
@@ -184,6 +195,8 @@ def compare(python: str, spec: Any, steps: int = 500, warmup: int = 20, rounds: 
         out[who] = {"median_ms": med(who, "median_ms"), "p99_ms": med(who, "p99_ms")}
     out["ratio_ours_over_acados"] = {"median": med("ratio_median"), "p99": med("ratio_p99")}
     out["clearance_cost_ms"] = med("clearance_cost_ms")
+    for key in ("ours_qp_ms", "ours_prepare_ms", "ours_qp_iterations", "acados_qp_ms", "acados_qp_iterations"):
+        out[key] = med(key)
     out["max_action_diff"] = max(r["max_action_diff"] for r in R)
     if ipopt:
         t_ip, _ = replay(build["ipopt"](), observations)
@@ -208,6 +221,9 @@ def print_comparison(c: Mapping[str, Any]) -> None:
     print(f"median over rounds: ours {c['ours']['median_ms']:.3f} ms (p99 {c['ours']['p99_ms']:.3f}), acados "
           f"{c['acados']['median_ms']:.3f} ms (p99 {c['acados']['p99_ms']:.3f}); ours/acados {ratio['median']:.2f}x "
           f"(p99 {ratio['p99']:.2f}x)")
+    print(f"of which the QP (feedback): ours {c['ours_qp_ms']:.3f} ms, acados (time_qp) {c['acados_qp_ms']:.3f} ms, "
+          f"mean IPM iterations {c['ours_qp_iterations']:.2f} / {c['acados_qp_iterations']:.2f}; our preparation "
+          f"{c['ours_prepare_ms']:.3f} ms")
     print(f"ours with the clearance constraint: {c['ours_clearance']['median_ms']:.3f} ms (p99 "
           f"{c['ours_clearance']['p99_ms']:.3f}), the constraint's own cost {c['clearance_cost_ms']:+.3f} ms")
     if "ipopt" in c:

@@ -300,14 +300,16 @@ def replay(solver, spec, observations):
     keys = list(observations)
     n = len(observations[keys[0]])
     obs = [{k: np.asarray(observations[k][i], dtype=np.float32) for k in keys} for i in range(n)]
-    times, actions, statuses = [], [], []
+    times, actions, statuses, qp_iter, qp_ms = [], [], [], [], []
     for o in obs:
         t0 = time.perf_counter()
         a, status = step.act(o)
         times.append((time.perf_counter() - t0) * 1e3)
         actions.append(a.tolist())
         statuses.append(int(status))
-    return {"step_ms": times, "actions": actions, "status": statuses}
+        qp_iter.append(int(np.ravel(solver.get_stats("qp_iter"))[-1]))   # (outside the timed step)
+        qp_ms.append(float(np.ravel(solver.get_stats("time_qp"))[-1]) * 1e3)
+    return {"step_ms": times, "actions": actions, "status": statuses, "qp_iterations": qp_iter, "qp_ms": qp_ms}
 
 
 def probe(solver, spec, xs, us, params, x0):
