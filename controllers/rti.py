@@ -224,7 +224,7 @@ class RTIOptions:
     eliminated, the QP loaded in the preparation phase) - OCPs without path constraints only;
     where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
     ``qp_mu0``: HPIPM's initial barrier parameter (None: the ``qp_mode`` preset's, 10 for
-    ``speed_abs``). 1.0 is what the acados anchor runs with; measured on the VT-NMPC it needs 2
+    ``speed_abs``). 1.0 is acados' value; measured on the VT-NMPC it needs 2
     interior-point iterations instead of 3 and lands closer to the converged QP solution when
     rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve).
     ``tangential_predictor`` (with ``qp_solver="hpipm"``): the preparation also solves the QP for
