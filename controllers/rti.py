@@ -34,6 +34,7 @@ compare with IPOPT (:class:`IpoptOCPSolver`, also the converged baseline of the 
 """
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -223,7 +224,7 @@ class RTIOptions:
     eliminated, the QP loaded in the preparation phase) - OCPs without path constraints only;
     where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
     ``qp_mu0``: HPIPM's initial barrier parameter (None: the ``qp_mode`` preset's, 10 for
-    ``speed_abs``). 1.0 is what the acados anchor runs with; measured on the VT-NMPC it needs 2
+    ``speed_abs``). 1.0 is acados' value; measured on the VT-NMPC it needs 2
     interior-point iterations instead of 3 and lands closer to the converged QP solution when
     rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve).
     ``tangential_predictor`` (with ``qp_solver="hpipm"``): the preparation also solves the QP for
@@ -506,6 +507,9 @@ class RTISolver:
 
         # ---- preallocated arrays shared with the CasADi buffers (modify in place only) --------
         self._w = np.zeros(ocp.n_vars)
+        # [x0 u0 x1 u1 ... xN]: the states are every (nx + nu)-th block of nx, x_N included
+        self._state_view = np.lib.stride_tricks.as_strided(
+            self._w, shape=(N + 1, nx), strides=((nx + nu) * self._w.itemsize, self._w.itemsize), writeable=False)
         self._p = np.zeros(ocp.np * (N + 1))           # stage-major: row k of (N+1, np) is stage k
         self._P = self._p.reshape(N + 1, ocp.np)
         self._W = W
@@ -599,6 +603,12 @@ class RTISolver:
         return self._w.copy()
 
     @property
+    def state_view(self) -> np.ndarray:
+        """The plan's states (N+1, nx) as a read-only view of the iterate (no copy; it follows
+        the iterate as it changes - copy it to keep it)."""
+        return self._state_view
+
+    @property
     def states(self) -> np.ndarray:
         return self.ocp.unpack(self.iterate)[0]
 
@@ -668,7 +678,13 @@ class RTISolver:
         ``(np,)`` for the same parameters at every stage, ``(N+1, np)`` for one row per stage."""
         if not self._initialized:
             raise RuntimeError("solver not initialized: call initialize(x0) first")
-        self._P[:] = self.check_params(params)
+        P = self._P
+        if type(params) is np.ndarray and params.dtype == np.float64 and params.shape[-1:] == P.shape[1:] \
+                and params.ndim <= 2 and (params.ndim == 1 or params.shape[0] == P.shape[0]) \
+                and math.isfinite(params.sum()):
+            P[:] = params   # the policies' own float64 arrays: no conversion, the same values
+        else:               # anything else is converted and checked (one-line errors)
+            P[:] = self.check_params(params)
         t0 = time.perf_counter()
         if self._direct is not None:
             self._prepare_direct()
@@ -725,13 +741,14 @@ class RTISolver:
         ocp = self.ocp
         nx, nu = ocp.nx, ocp.nu
         x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (nx,) or not np.all(np.isfinite(x0)):
+        if x0.shape != (nx,) or not (math.isfinite(x0.sum()) or np.isfinite(x0).all()):
             raise ValueError(f"x0 must be {nx} finite numbers, got {x0!r}")
         w, dw = self._w, self._dw
         t0 = time.perf_counter()
         predicted = False
         status = None
-        if not np.all(np.isfinite(w)):
+        # a finite sum means every entry is finite; an infinite one may still be an overflow
+        if not (math.isfinite(w.sum()) or np.isfinite(w).all()):
             # A non-finite warm start (a diverged plan, a corrupted guess) makes ill-posed QP
             # bounds, which CasADi's plugin refuses by raising; it is a failed step like any other.
             code, iterations, cost, status = -1, 0, float("nan"), "NONFINITE_ITERATE"
@@ -759,7 +776,7 @@ class RTISolver:
         self._prepared = False
         if status is None:
             status = HPIPM_STATUS.get(code, f"HPIPM_{code}")
-        ok = code == 0 and bool(np.all(np.isfinite(dw)))
+        ok = code == 0 and (math.isfinite(dw.sum()) or bool(np.isfinite(dw).all()))
         if code == 0 and not ok:
             status = "NONFINITE"
         st = SolveStats(prepare_ms=self._prepare_ms, feedback_ms=elapsed,
@@ -767,9 +784,9 @@ class RTISolver:
                         qp_iterations=iterations, status=status, cost=cost, predicted=predicted)
         if ok:
             w += dw
-            st.step_norm = float(np.max(np.abs(dw)))
+            st.step_norm = float(max(dw.max(), -dw.min()))
             self._since_success = 0
-            u0 = np.clip(w[nx:nx + nu], ocp.u_lower, ocp.u_upper)
+            u0 = np.minimum(np.maximum(w[nx:nx + nu], ocp.u_lower), ocp.u_upper)
         else:
             st.fallback = True
             self._since_success += 1

@@ -570,9 +570,11 @@ class RTIPolicy(Policy):
             self._stage_query = np.abs(np.arange(N + 1)[:, None] - self._query_stages[None, :]).argmin(axis=1)
             self._stage_params = np.zeros((N + 1, self.base_ocp.np + N_CLEARANCE_PARAMS))
         self.last_clearance = float("nan")
-        self._lookup: tuple[Any, ...] | None = None   # (positions, c, n, rotor position, min distance) of the last look-up
+        # (positions, c, n, rotor position, min distance, stage normals, stage offsets) of the last look-up
+        self._lookup: tuple[Any, ...] | None = None
         self.solver: RTISolver | IpoptOCPSolver = self._make_solver(config.weights)
         self.scaling: ActionScaling = config.scaling
+        self._action_map: tuple[ActionScaling, np.ndarray, np.ndarray] | None = None
         self.shifts_per_step = warm_start_shifts(config.control_dt, config.dt)
         self.normal = HorizontalNormal()
         self._last_q: np.ndarray | None = None
@@ -689,23 +691,29 @@ class RTIPolicy(Policy):
         P = self._stage_params
         npar = self.base_ocp.np
         P[:, :npar] = params
-        try:
-            xs = self.ocp.unpack(self.solver.iterate)[0]
-            pos = xs[self._query_stages, 0:3]
+        solver = self.solver
+        if isinstance(solver, RTISolver) and solver.initialized:
+            pos = solver.state_view[self._query_stages, 0:3]   # (a copy: fancy indexing)
             pos[self._query_stages == 0] = x0[0:3]
-        except RuntimeError:          # no plan yet (IPOPT before its first solve)
-            pos = np.tile(x0[0:3], (len(self._query_stages), 1))
+        else:
+            try:
+                xs = self.ocp.unpack(solver.iterate)[0]
+                pos = xs[self._query_stages, 0:3]
+                pos[self._query_stages == 0] = x0[0:3]
+            except RuntimeError:          # no plan yet (IPOPT before its first solve)
+                pos = np.tile(x0[0:3], (len(self._query_stages), 1))
         last = self._lookup
         cfg = self.config
         if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
                 or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
             c, d, n = self.obstacles.closest(pos)
             self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
-            self._lookup = last = (pos, c, n, self.obstacles.index, float(d.min()))
-        c, n = last[1], last[2]
-        k = self._stage_query
-        P[:, npar:npar + 3] = n[k]
-        P[:, npar + 3] = np.einsum("ij,ij->i", n, c)[k] + (self.config.d_min + self.config.clearance_backoff)
+            k = self._stage_query
+            # each stage's half-space [n, n^T c + d_min + back-off], kept until the next look-up
+            self._lookup = last = (pos, c, n, self.obstacles.index, float(d.min()), n[k],
+                                   np.einsum("ij,ij->i", n, c)[k] + (cfg.d_min + cfg.clearance_backoff))
+        P[:, npar:npar + 3] = last[5]
+        P[:, npar + 3] = last[6]
         return P
 
     @property
@@ -788,7 +796,15 @@ class RTIPolicy(Policy):
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
-        return self.scaling.to_action(self.command(obs))
+        c = self.command(obs)
+        # ActionScaling.to_action without its input check (the command is the solver's own finite
+        # (4,) float64): the same operations on the same numbers, so the same float32 action
+        scaling = self.scaling
+        if self._action_map is None or self._action_map[0] is not scaling:
+            lo = scaling.lower
+            self._action_map = (scaling, lo, scaling.upper - lo)
+        _, lo, span = self._action_map
+        return np.clip(2.0 * (c - lo) / span - 1.0, -1.0, 1.0).astype(np.float32)
 
     @property
     def predicted_states(self) -> np.ndarray:

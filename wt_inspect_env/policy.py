@@ -23,10 +23,37 @@ import numpy as np
 
 from wt_inspect_env.spaces import OBS_KEYS, OBS_SHAPES
 
+_OBS_SIZES = tuple(int(np.prod(OBS_SHAPES[k])) for k in OBS_KEYS)
+_OBS_SLICES = tuple(zip(OBS_KEYS, np.cumsum((0,) + _OBS_SIZES[:-1]).tolist(), np.cumsum(_OBS_SIZES).tolist()))
+_OBS_TOTAL = sum(_OBS_SIZES)
+
+
+def _fast_observation(obs: Any) -> dict[str, np.ndarray] | None:
+    """What :func:`check_observation` returns, for the common case of a dict of float32/float64
+    NumPy arrays of the documented shapes with finite values (the environments' own observations):
+    one conversion into one float64 buffer and one finiteness check, the arrays views of it (the
+    same values: float32 to float64 is exact). None for anything else (the full check names it)."""
+    if type(obs) is not dict:
+        return None
+    try:
+        parts = [obs[k] for k in OBS_KEYS]
+    except KeyError:
+        return None
+    for part, key in zip(parts, OBS_KEYS):
+        if type(part) is not np.ndarray or part.dtype.kind != "f" or part.shape != OBS_SHAPES[key]:
+            return None
+    buf = np.concatenate(parts, dtype=np.float64)
+    if buf.size != _OBS_TOTAL or not np.isfinite(buf.sum()):   # a sum that overflows: the full check
+        return None
+    return {key: buf[a:b] for key, a, b in _OBS_SLICES}
+
 
 def check_observation(obs: Mapping[str, Any]) -> dict[str, np.ndarray]:
     """The observation as float64 arrays of the documented shapes; ValueError naming the key
     otherwise (a missing key or a NaN must not reach a solver). A batch of one is unwrapped."""
+    fast = _fast_observation(obs)
+    if fast is not None:
+        return fast
     if not isinstance(obs, Mapping):
         raise ValueError(f"observation must be a dict with keys {OBS_KEYS}, got {type(obs).__name__}")
     out: dict[str, np.ndarray] = {}

@@ -34,6 +34,10 @@ measured, not assumed. The names resolved through the registry (``rti_compiled``
 The ``rti_*`` solver variants built here (``rti_ahead``, ``rti_hpipm``, ...) compare QP paths on
 the VT-NMPC OCP without the constraint. The compile time of the QP-data library is measured separately, into a
 fresh temporary cache so that it is a real compile.
+
+``--acados-python PATH`` (the Python of a virtual environment with acados) adds the comparison
+with the same OCP written in acados, alternating rounds on the same recorded observations, and
+the ratio to IPOPT on them (:mod:`.acados_compare`).
 """
 from __future__ import annotations
 
@@ -144,6 +148,12 @@ def _summary(values: np.ndarray) -> dict[str, float]:
             "max_ms": float(np.max(v))}
 
 
+def acados_spec(steps: int) -> Any:
+    """The episode whose observations the acados comparison replays (the bench's task)."""
+    opts = env_options(SCENARIO, WIND, overrides={"start_noise": START_NOISE})
+    return make_spec(SCENARIO, "bench-acados-record", WIND, 0, opts, max_time=(steps + 1) * 0.01, custom=True)
+
+
 def run_benchmark(steps: int = 500, warmup: int = 20,
                   solvers: Sequence[str] = ("rti_compiled", "rti_uncompiled", "ipopt")) -> dict[str, Any]:
     """Closed-loop timing of each solver on the same episode; see the module docstring."""
@@ -201,10 +211,21 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--solvers", default="rti_compiled,rti_no_clearance,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,"
                         "rti_uncompiled,ipopt,vtnmpc_plus,vtnmpc_plus_no_clearance,nmpc,nmpc_no_clearance,pampc",
                         help="comma-separated subset of " + ", ".join(SOLVERS))
+    parser.add_argument("--acados-python", default=None, metavar="PATH",
+                        help="the Python of a virtual environment with acados (comma-deps-acados): also time "
+                             "the same OCP in acados, alternating rounds on the same observations")
+    parser.add_argument("--acados-rounds", type=int, default=3, help="alternating rounds with acados (default 3)")
     args = parser.parse_args(argv)
     solvers = [s.strip() for s in args.solvers.split(",") if s.strip()]
     try:
+        if args.acados_python:
+            from .acados_compare import check_python
+            check_python(args.acados_python)
         results = run_benchmark(steps=args.steps, warmup=args.warmup, solvers=solvers)
+        if args.acados_python:
+            from .acados_compare import compare
+            results["acados"] = compare(args.acados_python, acados_spec(args.steps + args.warmup),
+                                        args.steps, args.warmup, args.acados_rounds)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -228,6 +249,10 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
             f"{'vtnmpc' if n == 'rti_compiled' else n} ({results[n]['step']['median_ms']:.3f})" for n in order))
     print(f"QP-data library: set-up with a fresh compile {results['compile']['setup_and_one_step_s']:.2f} s "
           "(then cached)")
+    if "acados" in results:
+        from .acados_compare import print_comparison
+        print()
+        print_comparison(results["acados"])
     return 0
 
 
