@@ -183,24 +183,25 @@ def _check_count(name: str, value) -> int:
 
 
 class MetricAccumulator:
-    """Incremental metrics for the environment: ``add`` one sample per step, ``result()`` any time
-    (O(1), cheap enough for every step's ``info``)."""
+    """Incremental metrics of one drone: ``add`` one sample per step, ``result()`` any time (O(1)).
+
+    The validated front of a :class:`BatchedMetrics` of one drone - the accumulation the
+    environments run for N drones - so the metrics have one implementation."""
 
     def __init__(self, n_triangles: int | None = None, config: MetricsConfig | None = None) -> None:
         self.config = config if config is not None else MetricsConfig()
         if not isinstance(self.config, MetricsConfig):
             raise ValueError(f"config must be a MetricsConfig, got {type(self.config).__name__}")
         self.n_triangles = _check_n_triangles(n_triangles)
-        self.reset()
+        self._batch = BatchedMetrics(1, self.n_triangles, self.config)
+        self._idx = np.zeros(1, dtype=np.int64)
 
     def reset(self) -> None:
-        self._tot = _Totals()
-        self._prev: tuple[float, float, float] | None = None
-        self._prev_col = False
+        self._batch.reset(0)
 
     @property
     def n_samples(self) -> int:
-        return self._tot.n
+        return int(self._batch.tot["n"][0])
 
     def add(self, t: float, position, quaternion, point, normal, *, collision: bool = False, n_new: int = 0,
             n_visible: int = 0, d_ref: float | None = None, inspecting: bool = True) -> None:
@@ -215,11 +216,11 @@ class MetricAccumulator:
         except (TypeError, ValueError):
             self._explain(t, position, quaternion, point, normal, d_ref)
             raise
-        tot = self._tot
         if not math.isfinite(t + x0 + x1 + x2 + qx + qy + qz + qw + p0 + p1 + p2 + n0 + n1 + n2 + dref):
             self._explain(t, position, quaternion, point, normal, d_ref)
-        if tot.n and not t >= tot.t_last:
-            raise ValueError(f"metrics time must be non-decreasing, got {t} after {tot.t_last}")
+        last = float(self._batch.tot["t_last"][0])
+        if self.n_samples and not t >= last:
+            raise ValueError(f"metrics time must be non-decreasing, got {t} after {last}")
         new, vis = n_new, n_visible
         if type(new) is not int or type(vis) is not int or new < 0 or vis < 0:
             new, vis = _check_count("n_new", n_new), _check_count("n_visible", n_visible)
@@ -227,64 +228,10 @@ class MetricAccumulator:
         nn = math.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         if qq < 1e-12 or nn < 1e-6 or dref <= 0.0:
             self._explain(t, position, quaternion, point, normal, d_ref)
-        # -- all-sample quantities
-        if tot.n == 0:
-            tot.t_first = t
-        else:
-            dx, dy, dz = x0 - self._prev[0], x1 - self._prev[1], x2 - self._prev[2]
-            tot.path += math.sqrt(dx * dx + dy * dy + dz * dz)
-        tot.n += 1
-        tot.t_last = t
-        self._prev = (x0, x1, x2)
-        col = bool(collision)
-        if col:
-            tot.col_samples += 1
-            if not self._prev_col:
-                tot.col_events += 1
-        self._prev_col = col
-        tot.new += new
-        tot.vis += vis
-        if not inspecting:
-            return
-        # -- inspection quantities (the formulas are mirrored, operation for operation, in _batch)
-        ax, ay, az = p0 - x0, p1 - x1, p2 - x2
-        bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-        bx1 = 2.0 * (qx * qy + qw * qz) / qq
-        dot = bx0 * ax + bx1 * ay
-        crs = bx0 * ay - bx1 * ax
-        d = math.sqrt(ax * ax + ay * ay)
-        bxy = math.sqrt(bx0 * bx0 + bx1 * bx1)
-        if d > 1e-9 and bxy > 1e-9:
-            hb = dot / d
-            h = hb / bxy
-            herr = RAD2DEG * math.atan2(abs(crs), dot)
-        else:
-            h, hb, herr = 0.0, 0.0, 90.0
-        u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
-        a_n = ax * u0 + ay * u1 + az * u2
-        dist3 = math.sqrt(ax * ax + ay * ay + az * az)
-        inc = RAD2DEG * math.acos(min(1.0, max(-1.0, -a_n / dist3))) if dist3 > 1e-9 else 90.0
-        o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
-        o = math.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-        err = d - dref
-        abs_err = abs(err)
-        tot.n_insp += 1
-        if abs_err < self.config.safety_margin:
-            tot.safe += 1
-        tot.sum_h += h
-        tot.sum_hb += hb
-        tot.min_h = min(tot.min_h, h)
-        tot.sum_herr += herr
-        tot.max_herr = max(tot.max_herr, herr)
-        tot.sum_d += d
-        tot.min_d = min(tot.min_d, d)
-        tot.max_d = max(tot.max_d, d)
-        tot.sum_err2 += err * err
-        tot.max_abs_err = max(tot.max_abs_err, abs_err)
-        tot.sum_inc += inc
-        tot.max_inc = max(tot.max_inc, inc)
-        tot.sum_o += o
-        tot.sum_dist3 += dist3
+        self._batch.add(self._idx, np.array([t]), np.array([[x0, x1, x2]]), np.array([[qx, qy, qz, qw]]),
+                        np.array([[p0, p1, p2]]), np.array([[n0, n1, n2]]), np.array([bool(collision)]),
+                        np.array([new]), np.array([vis]), np.array([bool(inspecting)]),
+                        d_ref=None if d_ref is None else dref)
 
     def _explain(self, t, position, quaternion, point, normal, d_ref) -> None:
         """Raise a ValueError naming the bad field (slow path, only on bad input)."""
@@ -304,7 +251,7 @@ class MetricAccumulator:
 
     def result(self) -> InspectionMetrics:
         """Metrics of everything added since the last reset (O(1); does not consume the samples)."""
-        return _finish(self._tot, self.n_triangles, self.config)
+        return self._batch.result(0)
 
 
 def _seq_sum(values: np.ndarray) -> float:
@@ -474,8 +421,9 @@ class BatchedMetrics:
 
     def add(self, idx: np.ndarray, t: np.ndarray, position: np.ndarray, quaternion: np.ndarray,
             point: np.ndarray, normal: np.ndarray, collision: np.ndarray, n_new: np.ndarray,
-            n_visible: np.ndarray, inspecting: np.ndarray) -> None:
-        """One sample for each drone in ``idx`` (the other arguments are rows for those drones)."""
+            n_visible: np.ndarray, inspecting: np.ndarray, d_ref: float | None = None) -> None:
+        """One sample for each drone in ``idx`` (the other arguments are rows for those drones;
+        ``d_ref`` overrides the configuration's reference distance for this sample)."""
         if len(idx) == 0:
             return
         tot = self.tot
@@ -483,7 +431,7 @@ class BatchedMetrics:
         qx, qy, qz, qw = quaternion[:, 0], quaternion[:, 1], quaternion[:, 2], quaternion[:, 3]
         p0, p1, p2 = point[:, 0], point[:, 1], point[:, 2]
         n0, n1, n2 = normal[:, 0], normal[:, 1], normal[:, 2]
-        dref = self.config.d_ref
+        dref = self.config.d_ref if d_ref is None else d_ref
         qq = qx * qx + qy * qy + qz * qz + qw * qw
         nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
         first = tot["n"][idx] == 0
