@@ -93,6 +93,8 @@ class BatchedQuadrotorSim:
         self.physics_dt = 1.0 / config.physics_hz
         self._client = -1
         self._gui = False
+        self._version = 0                 # bumped by every step and reset: the body-frame cache's key
+        self._kin_key: int | None = None
         self._integrator: DroneIntegrator | None = None
         # Drawing (a world of one drone renders): the turbine of drone 0's geometry is visible,
         # textured in chunks with obstacle_texture, plain grey without; the others are hidden.
@@ -296,6 +298,7 @@ class BatchedQuadrotorSim:
         vel, omega = p.getBaseVelocity(body, physicsClientId=cid)
         self._integrator.core.reset(i, pos, quat, vel, omega, np.zeros(3))
         self._integrator.placed(i)
+        self._version += 1
         self.steps[i] = 0
         self.in_collision[i] = False
         self.last_wind[i] = self._wind_at(i, 0.0)
@@ -310,26 +313,35 @@ class BatchedQuadrotorSim:
         """Body-to-world rotation entries (row-major) of every drone."""
         return bullet_rotation(self.quat)
 
+    def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
+        """(state (n, 10), body rates (n, 3)), computed once per step or reset (the env layer reads
+        them several times a step) and handed out as copies."""
+        key = self._version
+        if self._kin_key != key:
+            R = self.rotation()
+            vx, vy, vz = self.vel[:, 0], self.vel[:, 1], self.vel[:, 2]
+            out = np.empty((self.n, 10))
+            out[:, 0:3] = self.pos
+            out[:, 3] = R[0] * vx + R[3] * vy + R[6] * vz
+            out[:, 4] = R[1] * vx + R[4] * vy + R[7] * vz
+            out[:, 5] = R[2] * vx + R[5] * vy + R[8] * vz
+            out[:, 6:10] = self.quat
+            ox, oy, oz = self.omega[:, 0], self.omega[:, 1], self.omega[:, 2]
+            rates = np.stack([R[0] * ox + R[3] * oy + R[6] * oz,
+                              R[1] * ox + R[4] * oy + R[7] * oz,
+                              R[2] * ox + R[5] * oy + R[8] * oz], axis=1)
+            self._kin, self._kin_key = (out, rates), key
+        return self._kin
+
     @property
     def state(self) -> np.ndarray:
         """(n, 10) [position, body velocity, quaternion], as :attr:`QuadrotorSim.state` row by row."""
-        R = self.rotation()
-        vx, vy, vz = self.vel[:, 0], self.vel[:, 1], self.vel[:, 2]
-        out = np.empty((self.n, 10))
-        out[:, 0:3] = self.pos
-        out[:, 3] = R[0] * vx + R[3] * vy + R[6] * vz
-        out[:, 4] = R[1] * vx + R[4] * vy + R[7] * vz
-        out[:, 5] = R[2] * vx + R[5] * vy + R[8] * vz
-        out[:, 6:10] = self.quat
-        return out
+        return self._body_frame()[0].copy()
 
     @property
     def body_rates(self) -> np.ndarray:
-        R = self.rotation()
-        ox, oy, oz = self.omega[:, 0], self.omega[:, 1], self.omega[:, 2]
-        return np.stack([R[0] * ox + R[3] * oy + R[6] * oz,
-                         R[1] * ox + R[4] * oy + R[7] * oz,
-                         R[2] * ox + R[5] * oy + R[8] * oz], axis=1)
+        """(n, 3) body angular velocities (p, q, r) [rad/s]."""
+        return self._body_frame()[1].copy()
 
     @property
     def time(self) -> np.ndarray:
@@ -346,6 +358,7 @@ class BatchedQuadrotorSim:
         integ.commands[:] = commands
         self.in_collision[:] = False
         integ.step(self._mark_contacts)
+        self._version += 1
         self.steps += 1
         if self._gui:
             integ.sync_bodies()

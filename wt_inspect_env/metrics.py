@@ -201,7 +201,7 @@ class MetricAccumulator:
 
     @property
     def n_samples(self) -> int:
-        return int(self._batch.tot["n"][0])
+        return self._batch.n_samples(0)
 
     def add(self, t: float, position, quaternion, point, normal, *, collision: bool = False, n_new: int = 0,
             n_visible: int = 0, d_ref: float | None = None, inspecting: bool = True) -> None:
@@ -218,7 +218,7 @@ class MetricAccumulator:
             raise
         if not math.isfinite(t + x0 + x1 + x2 + qx + qy + qz + qw + p0 + p1 + p2 + n0 + n1 + n2 + dref):
             self._explain(t, position, quaternion, point, normal, d_ref)
-        last = float(self._batch.tot["t_last"][0])
+        last = float(self._batch.t_last[0])
         if self.n_samples and not t >= last:
             raise ValueError(f"metrics time must be non-decreasing, got {t} after {last}")
         new, vis = n_new, n_visible
@@ -262,9 +262,9 @@ def _seq_sum(values: np.ndarray) -> float:
 def inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn) -> tuple[np.ndarray, ...]:
     """Per-sample inspection quantities of arrays of samples - ``(h, hb, herr, d, inc, o, dist3)``
     (see the module docstring) - from positions, quaternions with their squared norm ``qq``, points
-    and normals with their norm ``nn``. The operations mirror :meth:`MetricAccumulator.add` one for
-    one (``atan2``/``acos`` per sample through :mod:`math`), so every caller - :func:`compute_metrics`
-    and the vector environment's batched accumulator - gets the scalar path's numbers bit for bit."""
+    and normals with their norm ``nn``. Element-wise, with ``atan2``/``acos`` per sample through
+    :mod:`math`, so a sample's numbers do not depend on the batch it is in: :func:`compute_metrics`
+    (recorded flights) and :class:`BatchedMetrics` (every environment) agree bit for bit."""
     ax, ay, az = p0 - x0, p1 - x1, p2 - x2
     bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
     bx1 = 2.0 * (qx * qy + qw * qz) / qq
@@ -389,95 +389,98 @@ _COUNTS = ("n", "n_insp", "safe", "col_events", "col_samples", "new", "vis")
 
 
 class BatchedMetrics:
-    """Per-drone metric totals; ``add`` one sample per drone and step, ``result(i)`` any time."""
+    """Per-drone metric totals; ``add`` one sample per drone and step, ``result(i)`` any time.
+
+    The totals are four stacked arrays (sums, minima, maxima, counts; columns in the order of
+    ``_SUMS`` ... ``_COUNTS``), so one sample costs a few whole-row NumPy operations whatever N is;
+    each entry is still a sequential sum / extremum over its drone's samples."""
 
     def __init__(self, n: int, n_triangles: int, config: MetricsConfig) -> None:
         self.n, self.n_triangles, self.config = n, n_triangles, config
-        self.tot: dict[str, np.ndarray] = {}
-        for k in _SUMS:
-            self.tot[k] = np.zeros(n)
-        for k in _MINS:
-            self.tot[k] = np.full(n, math.inf)
-        for k in _MAXS:
-            self.tot[k] = np.full(n, -math.inf)
-        for k in _COUNTS:
-            self.tot[k] = np.zeros(n, dtype=np.int64)
-        self.tot["t_first"] = np.full(n, math.nan)
-        self.tot["t_last"] = np.full(n, math.nan)
+        self.sums = np.zeros((n, len(_SUMS)))
+        self.mins = np.full((n, len(_MINS)), math.inf)
+        self.maxs = np.full((n, len(_MAXS)), -math.inf)
+        self.counts = np.zeros((n, len(_COUNTS)), dtype=np.int64)
+        self.t_first = np.full(n, math.nan)
+        self.t_last = np.full(n, math.nan)
         self._prev = np.zeros((n, 3))
         self._prev_col = np.zeros(n, dtype=bool)
 
+    def n_samples(self, i: int) -> int:
+        return int(self.counts[i, 0])
+
     def reset(self, i: int) -> None:
-        for k in _SUMS:
-            self.tot[k][i] = 0.0
-        for k in _MINS:
-            self.tot[k][i] = math.inf
-        for k in _MAXS:
-            self.tot[k][i] = -math.inf
-        for k in _COUNTS:
-            self.tot[k][i] = 0
-        self.tot["t_first"][i] = self.tot["t_last"][i] = math.nan
+        self.sums[i] = 0.0
+        self.mins[i] = math.inf
+        self.maxs[i] = -math.inf
+        self.counts[i] = 0
+        self.t_first[i] = self.t_last[i] = math.nan
         self._prev_col[i] = False
 
     def add(self, idx: np.ndarray, t: np.ndarray, position: np.ndarray, quaternion: np.ndarray,
             point: np.ndarray, normal: np.ndarray, collision: np.ndarray, n_new: np.ndarray,
             n_visible: np.ndarray, inspecting: np.ndarray, d_ref: float | None = None) -> None:
-        """One sample for each drone in ``idx`` (the other arguments are rows for those drones;
-        ``d_ref`` overrides the configuration's reference distance for this sample)."""
+        """One sample for each drone in ``idx`` (sorted; the other arguments are rows for those
+        drones; ``d_ref`` overrides the configuration's reference distance for this sample)."""
         if len(idx) == 0:
             return
-        tot = self.tot
-        x0, x1, x2 = position[:, 0], position[:, 1], position[:, 2]
-        qx, qy, qz, qw = quaternion[:, 0], quaternion[:, 1], quaternion[:, 2], quaternion[:, 3]
-        p0, p1, p2 = point[:, 0], point[:, 1], point[:, 2]
-        n0, n1, n2 = normal[:, 0], normal[:, 1], normal[:, 2]
-        dref = self.config.d_ref if d_ref is None else d_ref
-        qq = qx * qx + qy * qy + qz * qz + qw * qw
-        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        first = tot["n"][idx] == 0
-        tot["t_first"][idx[first]] = t[first]
+        full = len(idx) == self.n
+        rows = slice(None) if full else idx    # every drone: whole-array updates, no fancy indexing
+
+        def subset(mask: np.ndarray):
+            return rows if mask.all() else (np.flatnonzero(mask) if full else idx[mask])
+
+        counts = self.counts
+        first = counts[rows, 0] == 0
+        if first.any():
+            self.t_first[subset(first)] = t[first]
         rest = ~first
         if rest.any():
-            ir = idx[rest]
-            pv = self._prev[ir]
-            dx, dy, dz = x0[rest] - pv[:, 0], x1[rest] - pv[:, 1], x2[rest] - pv[:, 2]
-            tot["path"][ir] += np.sqrt(dx * dx + dy * dy + dz * dz)
-        tot["n"][idx] += 1
-        tot["t_last"][idx] = t
-        self._prev[idx] = position
+            ir = subset(rest)
+            dv = position[rest] - self._prev[ir]
+            dx, dy, dz = dv[:, 0], dv[:, 1], dv[:, 2]
+            self.sums[ir, 8] += np.sqrt(dx * dx + dy * dy + dz * dz)
+        self.t_last[rows] = t
+        self._prev[rows] = position
         col = collision.astype(bool)
-        tot["col_samples"][idx] += col
-        tot["col_events"][idx] += col & ~self._prev_col[idx]
-        self._prev_col[idx] = col
-        tot["new"][idx] += n_new
-        tot["vis"][idx] += n_visible
-        s = np.flatnonzero(inspecting)
-        if len(s) == 0:
+        inc_counts = np.empty((len(idx), 7), dtype=np.int64)
+        inc_counts[:, 0] = 1
+        inc_counts[:, 1] = 0
+        inc_counts[:, 2] = 0
+        inc_counts[:, 3] = col & ~self._prev_col[rows]
+        inc_counts[:, 4] = col
+        inc_counts[:, 5] = n_new
+        inc_counts[:, 6] = n_visible
+        self._prev_col[rows] = col
+        if not inspecting.any():
+            counts[rows] += inc_counts
             return
-        ii = idx[s]
-        x0, x1, x2, qx, qy, qz, qw = x0[s], x1[s], x2[s], qx[s], qy[s], qz[s], qw[s]
-        p0, p1, p2, n0, n1, n2, qq, nn = p0[s], p1[s], p2[s], n0[s], n1[s], n2[s], qq[s], nn[s]
-        h, hb, herr, d, inc, o, dist3 = inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn)
-        err = d - dref
+        if inspecting.all():
+            ii, sel = rows, slice(None)
+        else:
+            sel = np.flatnonzero(inspecting)
+            ii = subset(inspecting)
+        x, q, pt, nv = position[sel], quaternion[sel], point[sel], normal[sel]
+        qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        n0, n1, n2 = nv[:, 0], nv[:, 1], nv[:, 2]
+        qq = qx * qx + qy * qy + qz * qz + qw * qw
+        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        h, hb, herr, d, inc, o, dist3 = inspection_terms(x[:, 0], x[:, 1], x[:, 2], qx, qy, qz, qw, qq,
+                                                         pt[:, 0], pt[:, 1], pt[:, 2], n0, n1, n2, nn)
+        err = d - (self.config.d_ref if d_ref is None else d_ref)
         abs_err = np.abs(err)
-        tot["n_insp"][ii] += 1
-        tot["safe"][ii] += abs_err < self.config.safety_margin
-        tot["sum_h"][ii] += h
-        tot["sum_hb"][ii] += hb
-        tot["min_h"][ii] = np.minimum(tot["min_h"][ii], h)
-        tot["sum_herr"][ii] += herr
-        tot["max_herr"][ii] = np.maximum(tot["max_herr"][ii], herr)
-        tot["sum_d"][ii] += d
-        tot["min_d"][ii] = np.minimum(tot["min_d"][ii], d)
-        tot["max_d"][ii] = np.maximum(tot["max_d"][ii], d)
-        tot["sum_err2"][ii] += err * err
-        tot["max_abs_err"][ii] = np.maximum(tot["max_abs_err"][ii], abs_err)
-        tot["sum_inc"][ii] += inc
-        tot["max_inc"][ii] = np.maximum(tot["max_inc"][ii], inc)
-        tot["sum_o"][ii] += o
-        tot["sum_dist3"][ii] += dist3
+        inc_counts[sel, 1] = 1
+        inc_counts[sel, 2] = abs_err < self.config.safety_margin
+        counts[rows] += inc_counts
+        sums = self.sums[ii]
+        sums[:, 0:8] += np.column_stack([h, hb, herr, d, err * err, inc, o, dist3])
+        self.sums[ii] = sums
+        self.mins[ii] = np.minimum(self.mins[ii], np.column_stack([h, d]))
+        self.maxs[ii] = np.maximum(self.maxs[ii], np.column_stack([herr, d, abs_err, inc]))
 
     def result(self, i: int) -> InspectionMetrics:
         """Metrics of drone ``i`` since its last reset (the scalar ``_finish`` on its totals)."""
-        tot = _Totals(**{k: (int(v[i]) if v.dtype.kind == "i" else float(v[i])) for k, v in self.tot.items()})
+        tot = _Totals(**dict(zip(_SUMS, self.sums[i].tolist())), **dict(zip(_MINS, self.mins[i].tolist())),
+                      **dict(zip(_MAXS, self.maxs[i].tolist())), **dict(zip(_COUNTS, self.counts[i].tolist())),
+                      t_first=float(self.t_first[i]), t_last=float(self.t_last[i]))
         return _finish(tot, self.n_triangles, self.config)

@@ -404,8 +404,9 @@ class BatchedReference:
         tau = self.tau[idx]
         holding, done = self.holding[idx], self.done[idx]
         d = self._standoff
-        for r_i in np.unique(run_of).tolist():
-            sel = np.flatnonzero(run_of == r_i)
+        one_run = k_n == 1 or run_of.min() == run_of.max()      # the common case: no grouping needed
+        for r_i in ([int(run_of[0])] if one_run else np.unique(run_of).tolist()):
+            sel = np.arange(k_n) if one_run else np.flatnonzero(run_of == r_i)
             run = self._runs[r_i]
             t = tau[sel]
             n_tau = len(run.tau)
