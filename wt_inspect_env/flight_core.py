@@ -29,26 +29,20 @@ integrator with a warning (the same physics, slower).
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
 import threading
 from importlib import resources
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .native_cache import CompileError, LibraryCache
+from .native_cache import load_c_source
 from .quadrotor import GRAVITY, QuadrotorParams
 from .rate_control import Mixer, RateController, RateGains
 
 _SOURCE_NAME = "flight_core.c"
-_FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 _ABI = 2
 _LOCK = threading.Lock()
-_LIBS: dict[str, ctypes.CDLL] = {}
 INTEGRATORS = ("compiled", "bullet")   # SimConfig.integrator: this core (+ PyBullet near contacts), or PyBullet alone
 MAX_COORDINATE_VELOCITY = 100.0    # Bullet clamps every velocity component to this [m/s, rad/s]
 
@@ -75,27 +69,10 @@ def _source() -> str:
 def load_library(cache_dir: str | os.PathLike | None = None) -> ctypes.CDLL:
     """The compiled flight core (built on first use per source, compiler and flags, then loaded
     from the guarded cache). RuntimeError naming the cause when it cannot be built."""
-    src = _source()
-    exe = shutil.which(os.environ.get("CC") or "gcc")
-    if exe is None:
-        raise RuntimeError("no C compiler (gcc or $CC) to build the flight core")
-    key = hashlib.sha256("\n".join([src, exe, *_FLAGS]).encode()).hexdigest()[:20]
-    name = f"wt_flight_core_{key}.so"
     with _LOCK:
-        lib = _LIBS.get(name)
-        if lib is not None:
+        lib = load_c_source(_source(), "wt_flight_core", "flight core", cache_dir)
+        if getattr(lib, "_wt_ready", False):
             return lib
-
-        def build(tmp: Path) -> Path:
-            c = tmp / _SOURCE_NAME
-            c.write_text(src)
-            out = tmp / name
-            proc = subprocess.run([exe, *_FLAGS, str(c), "-o", str(out), "-lm"], capture_output=True, text=True)
-            if proc.returncode != 0:
-                raise CompileError(f"building the flight core failed: {proc.stderr.strip()[:300]}")
-            return out
-
-        lib, _, _ = LibraryCache.open(cache_dir).load(name, build, lambda p: ctypes.CDLL(str(p)))
         if lib.wt_abi_version() != _ABI:   # pragma: no cover - a source/wrapper mismatch
             raise RuntimeError("flight core ABI mismatch")
         i64p = ctypes.c_void_p
@@ -105,7 +82,7 @@ def load_library(cache_dir: str | os.PathLike | None = None) -> ctypes.CDLL:
         lib.wt_wrench.restype = None
         lib.wt_screen.argtypes = [ctypes.c_void_p, _P, _P, _D, _D, ctypes.c_int64, _D, _D, _P, _P, _P]
         lib.wt_screen.restype = ctypes.c_int64
-        _LIBS[name] = lib
+        lib._wt_ready = True
         return lib
 
 

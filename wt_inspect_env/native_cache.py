@@ -191,3 +191,41 @@ class LibraryCache:
         if self.entry_problem(lib) is not None:   # another process replaced it in between: build again
             self.build(name, builder)
         return loader(lib), lib, False
+
+
+_C_FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
+_C_LIBS: dict[str, object] = {}
+
+
+def load_c_source(source: str, stem: str, what: str, cache_dir: str | os.PathLike | None = None):
+    """The C ``source`` compiled as a shared library and loaded with ``ctypes`` - built on first
+    use per source, compiler and flags (``-O2 -ffp-contract=off``, no fast-math: the floating-point
+    operations are the ones written), then loaded from the guarded cache; one library object per
+    process. RuntimeError naming ``what`` when no compiler is there; CompileError when it fails."""
+    import ctypes
+    import subprocess
+    import threading
+
+    exe = shutil.which(os.environ.get("CC") or "gcc")
+    if exe is None:
+        raise RuntimeError(f"no C compiler (gcc or $CC) to build the {what}")
+    key = hashlib.sha256("\n".join([source, exe, *_C_FLAGS]).encode()).hexdigest()[:20]
+    name = f"{stem}_{key}.so"
+    lock = _C_LIBS.setdefault("__lock__", threading.Lock())
+    with lock:  # type: ignore[attr-defined]
+        lib = _C_LIBS.get(name)
+        if lib is not None:
+            return lib
+
+        def build(tmp: Path) -> Path:
+            c = tmp / f"{stem}.c"
+            c.write_text(source)
+            out = tmp / name
+            proc = subprocess.run([exe, *_C_FLAGS, str(c), "-o", str(out), "-lm"], capture_output=True, text=True)
+            if proc.returncode != 0:
+                raise CompileError(f"building the {what} failed: {proc.stderr.strip()[:300]}")
+            return out
+
+        lib, _, _ = LibraryCache.open(cache_dir).load(name, build, lambda p: ctypes.CDLL(str(p)))
+        _C_LIBS[name] = lib
+        return lib

@@ -1,0 +1,317 @@
+/* The inspection world's per-step arithmetic for N drones: the moving inspection reference, the
+ * running metrics and the default task's observation, reward and termination.
+ *
+ * Driven by world_core.py (ctypes). Every function loops over drones and, per drone, does the
+ * scalar arithmetic in a fixed order, so a drone's numbers do not depend on how many drones are
+ * stepped together. Compiled with -O2 -ffp-contract=off and no fast-math: the floating-point
+ * operations are the ones written (no fused multiply-adds, no reassociation).
+ */
+#include <math.h>
+#include <stdint.h>
+
+int64_t wt_world_abi_version(void) { return 1; }
+
+/* NumPy's maximum / minimum: NaN in, NaN out (C's fmax/fmin drop NaN). */
+static double np_max(double a, double b) { return (isnan(a) || isnan(b)) ? NAN : (a > b ? a : b); }
+static double np_min(double a, double b) { return (isnan(a) || isnan(b)) ? NAN : (a < b ? a : b); }
+
+/* ------------------------------------------------------------------------------ reference */
+
+typedef struct {
+    int64_t n_runs;
+    const int64_t *run_start;    /* first path sample of each run */
+    const int64_t *run_count;    /* samples per run */
+    const double *run_length;    /* tau length per run */
+    const double *run_offset;    /* tau length of the runs before */
+    const int64_t *run_phase;    /* phase label per run */
+    const double *tau;           /* per sample */
+    const double *dtau;          /* per sample (the last of a run unused) */
+    const double *geom;          /* per sample: point(3) normal(3) hdir(3) s */
+    const double *dp_dtau;       /* per sample, 3 */
+    const double *normals;       /* per sample, 3 (unit) */
+    const double *hdir;          /* per sample, 3 */
+    double total_length, speed, stop, inv_band, standoff, hold_limit;   /* hold_limit NaN: none */
+    int64_t closed;
+} RefPath;
+
+typedef struct {
+    /* per-drone reference state */
+    int64_t *run; double *tau, *time, *hold_elapsed; uint8_t *holding, *done, *release;
+    /* the current sample */
+    double *point, *normal, *velocity, *ideal; int64_t *phase; double *progress;
+    uint8_t *s_done, *waiting, *hold_started, *phase_changed;
+    double *s, *speed_factor, *lag, *s_time;
+} RefState;
+
+static void ref_sample(const RefPath *P, RefState *S, int64_t i, double sigma, int hold_started,
+                       int phase_changed, double lag) {
+    int64_t r = S->run[i], start = P->run_start[r], cnt = P->run_count[r], k = 0;
+    double t = S->tau[i], g[10];
+    if (cnt == 1) {
+        for (int j = 0; j < 10; ++j) g[j] = P->geom[10 * start + j];
+    } else {
+        /* searchsorted(tau, t, side="right") - 1, clamped to [0, cnt - 2] */
+        int64_t lo = 0, hi = cnt;
+        const double *tt = P->tau + start;
+        while (lo < hi) {
+            int64_t mid = lo + (hi - lo) / 2;
+            if (tt[mid] <= t) lo = mid + 1; else hi = mid;
+        }
+        k = lo - 1;
+        if (k < 0) k = 0;
+        if (k > cnt - 2) k = cnt - 2;
+        double dk = P->dtau[start + k], frac;
+        if (dk <= 0.0) frac = 0.0;
+        else frac = np_min(1.0, np_max(0.0, (t - tt[k]) / dk));
+        const double *g0 = P->geom + 10 * (start + k), *g1 = g0 + 10;
+        for (int j = 0; j < 10; ++j) g[j] = g0[j] + frac * (g1[j] - g0[j]);
+    }
+    int64_t row = start + k;
+    double nn = sqrt(g[3] * g[3] + g[4] * g[4] + g[5] * g[5]);
+    double *nrm = S->normal + 3 * i;
+    if (nn > 1e-9) { nrm[0] = g[3] / nn; nrm[1] = g[4] / nn; nrm[2] = g[5] / nn; }
+    else { for (int j = 0; j < 3; ++j) nrm[j] = P->normals[3 * row + j]; }
+    double hx = g[6], hy = g[7], hn = hypot(hx, hy);
+    if (hn > 1e-9) { hx = hx / hn; hy = hy / hn; }
+    else { hx = P->hdir[3 * row]; hy = P->hdir[3 * row + 1]; }
+    double d = P->standoff;
+    double *pt = S->point + 3 * i, *id = S->ideal + 3 * i, *v = S->velocity + 3 * i;
+    pt[0] = g[0]; pt[1] = g[1]; pt[2] = g[2];
+    id[0] = g[0] + d * hx; id[1] = g[1] + d * hy; id[2] = g[2];
+    S->phase[i] = P->run_phase[r];
+    S->s[i] = g[9];
+    int moving = !(S->holding[i] || S->done[i]) && cnt > 1;
+    S->speed_factor[i] = moving ? sigma : 0.0;
+    if (moving && sigma > 0.0) {
+        double f = sigma * P->speed;
+        for (int j = 0; j < 3; ++j) v[j] = f * P->dp_dtau[3 * row + j];
+    } else {
+        v[0] = v[1] = v[2] = 0.0;
+    }
+    double done_len = P->run_offset[r] + t;
+    if (P->total_length > 0) S->progress[i] = np_min(1.0, done_len / P->total_length);
+    else S->progress[i] = S->done[i] ? 1.0 : 0.0;
+    S->s_done[i] = S->done[i];
+    S->waiting[i] = S->holding[i];
+    S->hold_started[i] = (uint8_t)hold_started;
+    S->phase_changed[i] = (uint8_t)phase_changed;
+    S->lag[i] = lag;
+    S->s_time[i] = S->time[i];
+}
+
+/* The samples of drones idx (after a reset): no advance, no flags, lag unknown. */
+void wt_ref_sample(const RefPath *P, RefState *S, int64_t m, const int64_t *idx) {
+    for (int64_t j = 0; j < m; ++j) ref_sample(P, S, idx[j], 0.0, 0, 0, NAN);
+}
+
+/* One control step of every drone's reference given the drone positions (n, 3). */
+void wt_ref_step(const RefPath *P, RefState *S, int64_t n, double dt, const double *pos) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *q = S->ideal + 3 * i, *x = pos + 3 * i;
+        double d0 = x[0] - q[0], d1 = x[1] - q[1], d2 = x[2] - q[2];
+        double lag = sqrt(d0 * d0 + d1 * d1 + d2 * d2);
+        S->time[i] += dt;
+        double sigma = 0.0;
+        int hs = 0, pc = 0;
+        if (S->holding[i] && !S->done[i]) {
+            S->hold_elapsed[i] += dt;
+            int due = S->release[i] || (!isnan(P->hold_limit) && S->hold_elapsed[i] >= P->hold_limit - 1e-12);
+            if (due) {
+                S->holding[i] = 0;
+                S->release[i] = 0;
+                S->run[i] += 1;
+                S->tau[i] = 0.0;
+                pc = 1;
+            }
+        } else if (!S->holding[i] && !S->done[i]) {
+            double sm = 1.0;
+            if (P->closed) sm = sqrt(np_min(1.0, np_max(0.0, (P->stop - lag) * P->inv_band)));
+            sigma = sm;
+            S->tau[i] += sm * P->speed * dt;
+            double L = P->run_length[S->run[i]];
+            if (S->tau[i] >= L) {
+                S->tau[i] = L;
+                if (S->run[i] == P->n_runs - 1) {
+                    S->done[i] = 1;
+                } else {
+                    S->holding[i] = 1;
+                    S->hold_elapsed[i] = 0.0;
+                    hs = 1;
+                }
+            }
+        }
+        ref_sample(P, S, i, sigma, hs, pc, lag);
+    }
+}
+
+/* ------------------------------------------------------------------------------ metrics */
+
+#define RAD2DEG (180.0 / 3.141592653589793)
+
+typedef struct {
+    double *sums;      /* (n, 9): h, hb, herr, d, err^2, inc, o, dist3, path */
+    double *mins;      /* (n, 2): h, d */
+    double *maxs;      /* (n, 4): herr, d, |err|, inc */
+    int64_t *counts;   /* (n, 7): samples, inspecting, safe, collision events, collision samples, new, visible */
+    double *t_first, *t_last, *prev;   /* prev: (n, 3) last position */
+    uint8_t *prev_col;
+    double safety_margin;
+} Metrics;
+
+/* Add k samples, sample j to drone idx[j] (sequentially: a drone may appear several times, in
+ * time order). dref[j * dref_stride] is sample j's reference distance. */
+void wt_metrics_add(Metrics *M, int64_t k, const int64_t *idx, const double *t, const double *pos,
+                    const double *quat, const double *point, const double *normal, const uint8_t *col,
+                    const int64_t *n_new, const int64_t *n_vis, const uint8_t *insp, const double *dref,
+                    int64_t dref_stride) {
+    for (int64_t j = 0; j < k; ++j) {
+        int64_t i = idx[j];
+        int64_t *c = M->counts + 7 * i;
+        double *sm = M->sums + 9 * i, *mn = M->mins + 2 * i, *mx = M->maxs + 4 * i, *pv = M->prev + 3 * i;
+        const double *x = pos + 3 * j;
+        if (c[0] == 0) {
+            M->t_first[i] = t[j];
+        } else {
+            double dx = x[0] - pv[0], dy = x[1] - pv[1], dz = x[2] - pv[2];
+            sm[8] += sqrt(dx * dx + dy * dy + dz * dz);
+        }
+        M->t_last[i] = t[j];
+        pv[0] = x[0]; pv[1] = x[1]; pv[2] = x[2];
+        int cl = col[j] != 0;
+        c[0] += 1;
+        c[3] += cl && !M->prev_col[i];
+        c[4] += cl;
+        c[5] += n_new[j];
+        c[6] += n_vis[j];
+        M->prev_col[i] = (uint8_t)cl;
+        if (!insp[j]) continue;
+        const double *q = quat + 4 * j, *p = point + 3 * j, *nv = normal + 3 * j;
+        double qx = q[0], qy = q[1], qz = q[2], qw = q[3];
+        double qq = qx * qx + qy * qy + qz * qz + qw * qw;
+        double nn = sqrt(nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2]);
+        double ax = p[0] - x[0], ay = p[1] - x[1], az = p[2] - x[2];
+        double bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq;
+        double bx1 = 2.0 * (qx * qy + qw * qz) / qq;
+        double dot = bx0 * ax + bx1 * ay, crs = bx0 * ay - bx1 * ax;
+        double d = sqrt(ax * ax + ay * ay), bxy = sqrt(bx0 * bx0 + bx1 * bx1);
+        double h, hb, herr;
+        if (d > 1e-9 && bxy > 1e-9) { hb = dot / d; h = hb / bxy; herr = RAD2DEG * atan2(fabs(crs), dot); }
+        else { h = 0.0; hb = 0.0; herr = 90.0; }
+        double u0 = nv[0] / nn, u1 = nv[1] / nn, u2 = nv[2] / nn;
+        double a_n = ax * u0 + ay * u1 + az * u2;
+        double dist3 = sqrt(ax * ax + ay * ay + az * az);
+        double inc;
+        if (dist3 > 1e-9) inc = RAD2DEG * acos(np_min(1.0, np_max(-1.0, -a_n / dist3)));
+        else inc = 90.0;
+        double o0 = ax - a_n * u0, o1 = ay - a_n * u1, o2 = az - a_n * u2;
+        double o = sqrt(o0 * o0 + o1 * o1 + o2 * o2);
+        double err = d - dref[j * dref_stride], abs_err = fabs(err);
+        c[1] += 1;
+        c[2] += abs_err < M->safety_margin;
+        sm[0] += h; sm[1] += hb; sm[2] += herr; sm[3] += d; sm[4] += err * err; sm[5] += inc; sm[6] += o;
+        sm[7] += dist3;
+        mn[0] = np_min(mn[0], h); mn[1] = np_min(mn[1], d);
+        mx[0] = np_max(mx[0], herr); mx[1] = np_max(mx[1], d); mx[2] = np_max(mx[2], abs_err);
+        mx[3] = np_max(mx[3], inc);
+    }
+}
+
+/* ------------------------------------------------------------------------------ the task */
+
+typedef struct {
+    double coverage, distance, centering, effort, crash, distance_scale, dt;
+    int64_t n_triangles;
+} RewardWeights;
+
+static int finite_row(const double *x, int k) {
+    for (int j = 0; j < k; ++j) if (!isfinite(x[j])) return 0;
+    return 1;
+}
+
+/* Reward and its five terms (n, 5: coverage, distance, centering, effort, crash) per drone. */
+void wt_rewards(const RewardWeights *W, int64_t n, const double *action, const double *hover,
+                const double *state, const double *ideal, const double *point, const int64_t *n_new,
+                const uint8_t *crashed, double *reward, double *terms) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *s = state + 10 * i, *q = ideal + 3 * i, *p = point + 3 * i, *a = action + 4 * i;
+        double *tm = terms + 5 * i;
+        int fin = finite_row(s, 10);
+        double st[10];
+        for (int j = 0; j < 10; ++j) st[j] = fin ? s[j] : 0.0;
+        double d0 = st[0] - q[0], d1 = st[1] - q[1], d2 = st[2] - q[2];
+        double e = sqrt(d0 * d0 + d1 * d1 + d2 * d2);
+        double a0 = p[0] - st[0], a1 = p[1] - st[1];
+        double axy = hypot(a0, a1);
+        double qx = st[6], qy = st[7], qz = st[8], qw = st[9];
+        double fwd0 = 1 - 2 * (qy * qy + qz * qz), fwd1 = 2 * (qx * qy + qw * qz);
+        double h = axy > 1e-9 ? (fwd0 * a0 + fwd1 * a1) / axy : 0.0;
+        double r = e / W->distance_scale;
+        double gauss = exp(-0.5 * (r * r));
+        double u0 = a[0] - hover[0], u1 = a[1] - hover[1], u2 = a[2] - hover[2], u3 = a[3] - hover[3];
+        double effort = ((u0 * u0 + u1 * u1) + u2 * u2) + u3 * u3;
+        tm[0] = fin ? W->coverage * (double)n_new[i] / (double)W->n_triangles : 0.0;
+        tm[1] = fin ? W->distance * W->dt * gauss : 0.0;
+        tm[2] = fin ? W->centering * W->dt * h : 0.0;
+        tm[3] = fin ? -W->effort * W->dt * effort : 0.0;
+        tm[4] = (crashed[i] || !fin) ? -W->crash : 0.0;
+        reward[i] = (((tm[0] + tm[1]) + tm[2]) + tm[3]) + tm[4];
+    }
+}
+
+/* Termination codes (0 on, 1 non-finite, 2 collision, 3 left the working volume, 4 lost the pose);
+ * limit NaN: no pose-error limit. */
+void wt_terminations(int64_t n, const double *state, const uint8_t *collision, const double *lo,
+                     const double *hi, const double *ideal, const uint8_t *waiting, double limit,
+                     int64_t *code) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *s = state + 10 * i;
+        if (!finite_row(s, 10)) { code[i] = 1; continue; }
+        if (collision[i]) { code[i] = 2; continue; }
+        int left = 0;
+        for (int j = 0; j < 3; ++j) left |= (s[j] < lo[3 * i + j]) || (s[j] > hi[3 * i + j]);
+        if (left) { code[i] = 3; continue; }
+        code[i] = 0;
+        if (!isnan(limit) && !waiting[i]) {
+            const double *q = ideal + 3 * i;
+            double e0 = s[0] - q[0], e1 = s[1] - q[1], e2 = s[2] - q[2];
+            if (sqrt(e0 * e0 + e1 * e1 + e2 * e2) > limit) code[i] = 4;
+        }
+    }
+}
+
+static double safe_value(double v, int safe) {
+    if (!safe) return v;
+    return isfinite(v) ? v : 0.0;      /* NaN and +-inf -> 0 */
+}
+
+static float clip1(double v) { return (float)(v < -1.0 ? -1.0 : (v > 1.0 ? 1.0 : v)); }
+
+/* The Dict observation's 24 floats per drone: position 3, velocity_body 3, quaternion 4,
+ * body_rates 3, point 3, normal 3, point_velocity 3, coverage 1, progress 1. Rows flagged safe
+ * (non-finite states) have NaN/inf replaced by 0. */
+void wt_observations(int64_t n, const double *state, const double *rates, const double *point,
+                     const double *normal, const double *pvel, const double *coverage,
+                     const double *progress, const uint8_t *safe, float *out) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *s = state + 10 * i, *w = rates + 3 * i;
+        int sf = safe[i] != 0;
+        float *o = out + 24 * i;
+        double st[10];
+        for (int j = 0; j < 10; ++j) st[j] = safe_value(s[j], sf);
+        for (int j = 0; j < 6; ++j) o[j] = (float)st[j];
+        double qx = st[6], qy = st[7], qz = st[8], qw = st[9];
+        double nq = sqrt(qx * qx + qy * qy + qz * qz + qw * qw);
+        if (nq > 1e-9) { o[6] = clip1(qx / nq); o[7] = clip1(qy / nq); o[8] = clip1(qz / nq); o[9] = clip1(qw / nq); }
+        else { o[6] = 0.0f; o[7] = 0.0f; o[8] = 0.0f; o[9] = 1.0f; }
+        for (int j = 0; j < 3; ++j) {
+            o[10 + j] = (float)safe_value(w[j], sf);
+            o[13 + j] = (float)point[3 * i + j];
+            o[16 + j] = clip1(normal[3 * i + j]);
+            o[19 + j] = (float)pvel[3 * i + j];
+        }
+        double cv = coverage[i];
+        o[22] = (float)(cv > 1.0 ? 1.0 : cv);
+        double pg = progress[i];
+        o[23] = (float)(pg > 1.0 ? 1.0 : (pg < 0.0 ? 0.0 : pg));
+    }
+}
