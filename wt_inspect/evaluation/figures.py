@@ -14,7 +14,8 @@ Per wind speed, from the first seed of every controller (the paper shows its 4 m
   (root left, tip right), every triangle coloured by the number of camera frames that saw it,
   never-seen mission triangles red, blade triangles outside the mission grey;
 * ``energy_w{W}.png`` - electrical power of the rotors over time (the harness's energy model)
-  and the energy used so far, with each run's energy, mean power and path length in the legend.
+  and the energy used so far minus hovering for as long, with each run's energy and path length
+  in the legend.
 
 Runs recorded before the clearance and energy arrays existed are left out of those panels.
 """
@@ -165,8 +166,10 @@ def _window_mean(values: np.ndarray) -> np.ndarray:
 
 
 def energy(runs: Sequence[RunResult], path: Path, title: str) -> Path:
-    """Electrical power over time and the energy used so far (trapezoid over the recorded
-    samples; the legend's numbers are the run's metrics, over every control step)."""
+    """Electrical power over time, and the energy used so far minus what hovering would have used
+    in the same time (trapezoid over the recorded samples): most of a mission's energy is holding
+    the drone up, so the totals of two controllers draw as one line while their difference to
+    hover separates them. The legend's numbers are the run's metrics (every control step)."""
     fig, (axp, axe) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
     for i, r in enumerate(runs):
         a = r.arrays
@@ -179,7 +182,9 @@ def energy(runs: Sequence[RunResult], path: Path, title: str) -> Path:
         axp.plot(t[sel], _window_mean(P), color=color, lw=0.8,
                  label=f"{display_name(r.spec.controller)} (mean {m.get('mean_power_w', np.nan):.0f} W)")
         cum = np.concatenate([[0.0], np.cumsum(0.5 * (P[1:] + P[:-1]) * np.diff(t))]) / 3600.0
-        axe.plot(t[sel], cum[sel], color=color, lw=1.0,
+        hover = float(m.get("hover_power_w", np.nan))
+        above = cum - (hover if np.isfinite(hover) else 0.0) * (t - t[0]) / 3600.0
+        axe.plot(t[sel], above[sel], color=color, lw=1.0,
                  label=f"{display_name(r.spec.controller)}: {m.get('energy_wh', np.nan):.2f} Wh, "
                        f"path {m.get('path_length_m', np.nan):.0f} m")
     hover = sorted({v for r in runs if "power" in r.arrays
@@ -191,8 +196,9 @@ def energy(runs: Sequence[RunResult], path: Path, title: str) -> Path:
     axp.set_title(title)
     axe.set_xlim(0, max(float(r.arrays["t"][-1]) for r in runs))
     axe.set_xlabel("time [s]")
-    axe.set_ylabel("energy used [Wh]")
-    axe.legend(fontsize=8, loc="upper left")
+    axe.axhline(0.0, color="k", lw=0.6)
+    axe.set_ylabel("energy used minus hovering\nfor the same time [Wh]")
+    axe.legend(fontsize=8, loc="upper right")
     return _save(fig, path)
 
 
