@@ -283,8 +283,7 @@ class _Track:
                                                            (self.t, self.pos, self.thrust, self.waiting))
         i = self.n
         self.t[i] = info["time"]
-        self.pos[i] = sim.state[0:3]
-        self.thrust[i] = sim.rotor_thrusts
+        self.pos[i], self.thrust[i] = _position_and_thrusts(sim)
         self.waiting[i] = info["waiting_for_phase_change"]
         self.n += 1
 
@@ -297,10 +296,26 @@ class _Track:
         geo = geometry_index(self.waiting[:n], len(turbines))
         d_min = D_MIN_RATIO * float(env.config.standoff)
         clearance = mesh_clearance(self.pos[:n], [tb.mesh for tb in turbines], geo, d_min=d_min)
-        power = rotor_power(sim.plant, self.thrust[:n])
-        body_radius = float(np.linalg.norm(sim.params.collision_half_extents))
-        metrics = clearance_metrics(t, clearance, d_min, body_radius) | energy_metrics(t, power, sim.plant)
+        plant = _plant(sim)
+        power = rotor_power(plant, self.thrust[:n])
+        body_radius = float(np.linalg.norm(env.params.collision_half_extents))   # the nominal box collides
+        metrics = clearance_metrics(t, clearance, d_min, body_radius) | energy_metrics(t, power, plant)
         return metrics, {"clearance": clearance, "rotor_thrust": self.thrust[:n], "power": power}
+
+
+def _position_and_thrusts(sim: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The drone's world position (3,) and its four rotor thrusts [N] (4,) (times the plant's
+    thrust factor) from the environment's simulator: the single-drone ``QuadrotorSim``
+    (``state``, ``rotor_thrusts``) or a batched one of which the environment is drone 0 (``pos``,
+    ``f`` and ``thrust_scales`` arrays, n = 1 for the single env)."""
+    if hasattr(sim, "rotor_thrusts"):
+        return sim.state[0:3], sim.rotor_thrusts
+    return sim.pos[0], sim.f[0] * sim.thrust_scales[0]
+
+
+def _plant(sim: Any) -> Any:
+    """The airframe the simulator integrates (domain randomisation may change it), drone 0's."""
+    return sim.plant if hasattr(sim, "plant") else sim.plants[0]
 
 
 def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mapping[str, Any]) -> int:
