@@ -133,7 +133,8 @@ def test_evaluate_from_a_config_writes_svg_figures_and_the_equivalent_command(tm
     assert main(["evaluate", "--config", str(cfg), "--out", str(out)]) == 0
     assert not (tmp_path / "from_file").exists()
     figures = sorted(p.name for p in out.iterdir() if p.suffix in {".png", ".pdf", ".svg"})
-    assert figures == ["centering_w4.svg", "coverage_w4.svg", "distance_w4.svg", "trajectories_w4.svg"]
+    assert figures == ["centering_w4.svg", "coverage_w4.svg", "distance_w4.svg", "energy_w4.svg",
+                       "trajectories_w4.svg"]
     assert (out / "trajectories_w4.svg").read_text().lstrip().startswith("<?xml")
     md = (out / "results.md").read_text()
     assert (f"`wt-inspect evaluate --scenario surface --controllers vtnmpc-plus --winds 4 --out {out} --jobs 1 "

@@ -83,7 +83,7 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
     md = (out / "results.md").read_text()
     assert "| metric | NMPC | VT-NMPC |" in md and "Safety (SM) (±1 m)" in md   # no paper numbers: no column
     pngs = sorted(p.name for p in out.glob("*.png"))
-    assert pngs == sorted(f"{k}_w{w}.png" for k in ("trajectories", "distance", "centering", "coverage")
+    assert pngs == sorted(f"{k}_w{w}.png" for k in ("trajectories", "distance", "centering", "coverage", "energy")
                           for w in (0, 4))
     assert all((out / p).stat().st_size > 10_000 for p in pngs)
 

@@ -48,6 +48,15 @@ class QuadrotorParams:
     # THR_MDL_FAC model. Used only where a command leaves the newton world (the PX4 bridge maps
     # the policy's thrust to PX4's normalised thrust, and its SITL motors through it); 0 = linear.
     thrust_curve: float = 0.0
+    # Electrical power model (used by the evaluation harness to price a flight, never by the
+    # physics): per rotor P = T^(3/2) / sqrt(2 rho A) / (figure_of_merit * drive_efficiency), the
+    # ideal induced power of momentum theory over the rotor disk A = pi prop_radius^2, divided by
+    # the propeller's figure of merit (ideal / actual shaft power in hover) and the motor + ESC
+    # efficiency (shaft / electrical power). The defaults are typical published values for small
+    # multirotor propellers and drives (see each preset's source), not measurements of one airframe.
+    figure_of_merit: float = 0.65
+    drive_efficiency: float = 0.75
+    air_density: float = AIR_DENSITY     # of the power model only; the drag model uses AIR_DENSITY
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -74,6 +83,10 @@ class QuadrotorParams:
         check_positive("prop_radius", self.prop_radius)
         check_positive("frame_height", self.frame_height)
         check_positive("motor_time_constant", self.motor_time_constant, allow_zero=True)
+        for fname in ("figure_of_merit", "drive_efficiency"):
+            if not 0.0 < check_positive(fname, getattr(self, fname)) <= 1.0:
+                raise ValueError(f"{fname} must lie in (0, 1], got {getattr(self, fname)!r}")
+        check_positive("air_density", self.air_density)
         if not 0.0 <= check_positive("thrust_curve", self.thrust_curve, allow_zero=True) <= 1.0:
             raise ValueError(f"thrust_curve must lie in [0, 1] (PX4's THR_MDL_FAC), got {self.thrust_curve!r}")
         for fname in ("rotor_drag", "body_drag_area"):
@@ -98,6 +111,17 @@ class QuadrotorParams:
     def weight(self) -> float:
         """m g [N]: the hover thrust."""
         return hover_thrust(self.mass)
+
+    @property
+    def rotor_disk_area(self) -> float:
+        """pi prop_radius^2 [m^2]: the disk of one rotor (the power model's A)."""
+        return float(np.pi * self.prop_radius ** 2)
+
+    @property
+    def hover_power(self) -> float:
+        """Electrical power [W] of the power model in hover, each rotor at m g / 4
+        (:func:`electrical_power`)."""
+        return float(electrical_power(self, np.full(4, self.weight / 4.0)))
 
     @property
     def inertia_matrix(self) -> np.ndarray:
@@ -143,7 +167,12 @@ PRESETS: dict[str, QuadrotorParams] = {
             "torque/thrust ratio 0.016 m and motor time constant 0.04 s typical of 13-inch props; "
             "linear rotor drag 2.9 N/(m/s) horizontally = the authors' Gazebo model; "
             "C_d A of 0.05 m^2 frontal, 0.1 m^2 from above (estimated); collision box from the "
-            "wheelbase plus 13-inch prop disks, 0.2 m tall (estimated)."
+            "wheelbase plus 13-inch prop disks, 0.2 m tall (estimated). Power model: rotor disk of the "
+            "13-inch (0.165 m radius) props; figure of merit 0.65, within the 0.5-0.7 typical of "
+            "static tests of 10-14-inch multirotor propellers (e.g. the UIUC propeller data site; FM "
+            "as defined in Leishman, Principles of Helicopter Aerodynamics); motor + ESC "
+            "efficiency 0.75 (about 0.8 for a brushless motor at part load times 0.95 for the ESC); "
+            "sea-level air 1.225 kg/m^3. Typical values, not measured on a Matrice 100."
         ),
     ),
     "lab250": QuadrotorParams(
@@ -158,6 +187,8 @@ PRESETS: dict[str, QuadrotorParams] = {
         body_drag_area=(0.01, 0.01, 0.02),
         prop_radius=0.0635,
         frame_height=0.08,
+        figure_of_merit=0.55,
+        drive_efficiency=0.70,
         source=(
             "The paper's lab quadrotor: 1.09 kg, 250 mm motor-to-motor diagonal -> 0.125 m arm "
             "(paper, Experimental Setup); inertia from 4 x 0.05 kg motors on the arms plus the other "
@@ -165,7 +196,10 @@ PRESETS: dict[str, QuadrotorParams] = {
             "7 N per rotor (5-inch props, thrust/weight 2.6); torque/thrust 0.011 m, motor lag "
             "0.02 s (estimated); linear drag 0.5 N/(m/s) per kg horizontally (the M100 model has "
             "0.8), C_d A 0.01 m^2 frontal, 5-inch prop disks and 0.08 m frame height for the "
-            "collision box (estimated)."
+            "collision box (estimated). Power model: 5-inch (0.0635 m radius) rotor disks; figure of "
+            "merit 0.55 (small propellers at low Reynolds number stay below the 0.6-0.7 of larger "
+            "ones); motor + ESC efficiency 0.70 (small motors at part load, estimated); sea-level air "
+            "1.225 kg/m^3. Typical values, not measured on the paper's airframe."
         ),
     ),
 }
@@ -175,6 +209,27 @@ def get_preset(name: str) -> QuadrotorParams:
     """The named parameter preset; ``ValueError`` listing the valid names otherwise."""
     check_choice("drone preset", name, PRESETS)
     return PRESETS[name]
+
+
+def electrical_power(params: QuadrotorParams, rotor_thrusts) -> np.ndarray:
+    """Electrical power [W] drawn for the given rotor thrusts [N] (shape (..., 4); the sum over
+    the last axis is returned, shape (...)).
+
+    Per rotor, momentum theory's ideal induced power in hover, ``P_i = T^(3/2) / sqrt(2 rho A)``
+    (A = :attr:`QuadrotorParams.rotor_disk_area`, rho = ``air_density``), divided by the
+    propeller's ``figure_of_merit`` and the motor + ESC ``drive_efficiency``. Why this model: it
+    needs nothing but the thrusts the simulator already computes and three published-typical
+    constants, and it prices exactly what a controller changes - how much thrust it asks for and
+    how unevenly the rotors share it (P grows as T^1.5, so uneven rotors cost more than even ones
+    for the same total). What it leaves out: the change of induced power with inflow in forward
+    flight and climb (translational lift), avionics and payload power, and the motors' idle
+    draw. Negative thrusts (never produced by the simulator) count as zero."""
+    f = np.maximum(np.asarray(rotor_thrusts, dtype=float), 0.0)
+    if f.shape[-1:] != (4,):
+        raise ValueError(f"rotor_thrusts must have shape (..., 4), got {f.shape}")
+    k = 1.0 / (np.sqrt(2.0 * params.air_density * params.rotor_disk_area)
+               * params.figure_of_merit * params.drive_efficiency)
+    return k * (f * np.sqrt(f)).sum(axis=-1)
 
 
 def drag_force(params: QuadrotorParams, v_rel_body) -> np.ndarray:

@@ -70,7 +70,8 @@ RSS_WARMUP_EPISODES = 20   # a worker's first episodes compile solvers and fill 
 COLUMNS = ("episode", "seed", "wind", "wind_direction_deg", "tower_height", "blade_length", "blade_width",
            "rotor_azimuth_deg", "start_offset_m", "start_redraws", "termination", "crashed", "exception", "non_finite",
            "collisions", "steps", "fallback_steps", "fallback_fraction", "coverage", "safety", "centering",
-           "min_distance", "sim_time", "wall_time", "rss_mb", "worker", "run_file", "error")
+           "min_distance", "clearance_min_m", "time_below_d_min_s", "energy_wh", "path_length", "sim_time",
+           "wall_time", "rss_mb", "worker", "run_file", "error")
 
 
 @dataclass(frozen=True)
@@ -235,6 +236,9 @@ def _row(draw: Mapping[str, Any], res: RunResult) -> dict[str, Any]:
             "fallback_fraction": fb / res.steps if res.steps else math.nan,
             "coverage": m.get("coverage", math.nan), "safety": m.get("safety_sm", math.nan),
             "centering": m.get("centering_cm", math.nan), "min_distance": m.get("min_distance_m", math.nan),
+            "clearance_min_m": m.get("clearance_min_m", math.nan),
+            "time_below_d_min_s": m.get("time_below_d_min_s", math.nan), "energy_wh": m.get("energy_wh", math.nan),
+            "path_length": m.get("path_length_m", math.nan),
             "sim_time": res.sim_time_s, "wall_time": res.wall_time_s, "rss_mb": res.solve.get("rss_mb", math.nan),
             "worker": int(res.solve.get("worker_pid", 0) or 0), "run_file": res.path.name if res.path else "", "error": m.get("error", "")}
 
@@ -302,14 +306,27 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
              f"| wall time | {wall_total if wall_total is not None else wall:.1f} s over every invocation, "
              f"{wall:.1f} s in the last ({s['wall_time_per_episode_s']:.1f} s per episode in a worker) | - |", "",
              "Terminations: " + ", ".join(f"{k or 'none'} {v}" for k, v in s["terminations"].items()), "",
-             "| # | wind | tower / blade | azimuth | offset | end | coverage | SM | fallbacks | RSS | error |",
-             "|---:|---:|---|---:|---:|---|---:|---:|---:|---:|---|"]
+             "| # | wind | tower / blade | azimuth | offset | end | coverage | SM | min clearance | below d_min "
+             "| energy | fallbacks | RSS | error |",
+             "|---:|---:|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---|"]
     for r in rows:
         lines.append(f"| {r['episode']} | {r['wind']:.1f} | {r['tower_height']:.0f} / {r['blade_length']:.0f} | "
                      f"{r['rotor_azimuth_deg']:.0f} | {r['start_offset_m']:.1f} | {r['termination']} | "
-                     f"{100 * float(r['coverage']):.1f} | {100 * float(r['safety']):.1f} | {r['fallback_steps']:.0f} | "
+                     f"{100 * float(r['coverage']):.1f} | {100 * float(r['safety']):.1f} | "
+                     f"{_num(r.get('clearance_min_m'), '{:.2f} m')} | {_num(r.get('time_below_d_min_s'), '{:.1f} s')} | "
+                     f"{_num(r.get('energy_wh'), '{:.2f} Wh')} | {r['fallback_steps']:.0f} | "
                      f"{float(r['rss_mb']):.0f} | {str(r['error'])[:80]} |")
     return "\n".join(lines) + "\n"
+
+
+def _num(v: Any, fmt: str) -> str:
+    """``fmt`` of a finite number, ``-`` otherwise (an episode that raised, a run file from before
+    the clearance and energy columns)."""
+    try:
+        f = float(v)
+    except (TypeError, ValueError):
+        return "-"
+    return fmt.format(f) if math.isfinite(f) else "-"
 
 
 def _figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
@@ -337,8 +354,16 @@ def _figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
         ax[1, 0].plot([r["episode"] for r in mine], [float(r["rss_mb"]) for r in mine], ".-", label=f"worker {w}")
     ax[1, 0].legend(fontsize=8)
     ax[1, 0].set(xlabel="episode", ylabel="worker RSS [MB]", title="memory after each episode")
-    ax[1, 1].scatter([r["start_offset_m"] for r in rows], [float(r["min_distance"]) for r in rows], s=14)
-    ax[1, 1].set(xlabel="start offset [m]", ylabel="min distance to the point [m]", title="start and distance")
+    off = [r["start_offset_m"] for r in rows]
+    ax[1, 1].scatter(off, [float(r["min_distance"]) for r in rows], s=14, label="min distance to the point")
+    ax[1, 1].scatter(off, [float(r.get("clearance_min_m", math.nan)) for r in rows], s=14, marker="^",
+                     label="min clearance to the turbine")
+    from wt_inspect.evaluation.harness_metrics import D_MIN_RATIO
+    from wt_inspect_env.env_config import EnvConfig
+    d_min = D_MIN_RATIO * EnvConfig().standoff     # the episodes fly the default stand-off
+    ax[1, 1].axhline(d_min, color="r", lw=0.8, ls="--", label=f"d_min = {d_min:g} m")
+    ax[1, 1].legend(fontsize=8)
+    ax[1, 1].set(xlabel="start offset [m]", ylabel="distance [m]", title="start, distance and clearance")
     fig.tight_layout()
     return save_and_close(fig, path)
 

@@ -5,12 +5,19 @@ Per wind speed, from the first seed of every controller (the paper shows its 4 m
 
 * ``trajectories_w{W}.png`` - 3-D drone trajectories around the turbine, one panel per mission
   phase (phase 2 is flown around the turned rotor), the stand-off reference dashed;
-* ``distance_w{W}.png`` - horizontal distance to the inspection point over time with d_ref and
-  the SM band (d_ref +- margin);
+* ``distance_w{W}.png`` - top: horizontal distance to the inspection point over time with d_ref
+  and the SM band (d_ref +- margin); bottom: clearance of the drone's centre to the turbine mesh
+  with d_min (the two distances are different things: a drone can hold 7 m to the point and pass
+  2 m from a blade edge);
 * ``centering_w{W}.png`` - the heading function h over time (CM is its mean, in the legend);
 * ``coverage_w{W}.png`` - per-triangle coverage map: the blade faces unfolded into flat strips
   (root left, tip right), every triangle coloured by the number of camera frames that saw it,
-  never-seen mission triangles red, blade triangles outside the mission grey.
+  never-seen mission triangles red, blade triangles outside the mission grey;
+* ``energy_w{W}.png`` - electrical power of the rotors over time (the harness's energy model)
+  and the energy used so far minus hovering for as long, with each run's energy and path length
+  in the legend.
+
+Runs recorded before the clearance and energy arrays existed are left out of those panels.
 """
 from __future__ import annotations
 
@@ -95,7 +102,11 @@ def trajectories(runs: Sequence[RunResult], path: Path, title: str) -> Path:
 def distance(runs: Sequence[RunResult], path: Path, title: str) -> Path:
     r0 = runs[0]
     d_ref, margin = r0.d_ref, r0.safety_margin
-    fig, ax = plt.subplots(figsize=(11, 4))
+    with_clearance = [r for r in runs if "clearance" in r.arrays]
+    if with_clearance:
+        fig, (ax, axc) = plt.subplots(2, 1, figsize=(11, 7.5), sharex=True)
+    else:
+        fig, ax = plt.subplots(figsize=(11, 4))
     t_max = max(float(r.arrays["t"][-1]) for r in runs)
     ax.axhspan(d_ref - margin, d_ref + margin, color="0.9", label=f"SM band ±{margin:g} m")
     ax.axhline(d_ref, color="k", lw=0.8, ls="--", label=f"d_ref = {d_ref:g} m")
@@ -111,10 +122,83 @@ def distance(runs: Sequence[RunResult], path: Path, title: str) -> Path:
     hi = max(d_ref + 2 * margin, *(np.nanmax(np.where(r.arrays["inspecting"], r.arrays["distance"], np.nan))
                                    for r in runs))
     ax.set_ylim(lo - 0.05 * (hi - lo), hi + 0.05 * (hi - lo))
-    ax.set_xlabel("time [s]")
+    if not with_clearance:
+        ax.set_xlabel("time [s]")
     ax.set_ylabel("horizontal distance to the inspection point [m]")
     ax.legend(fontsize=8, loc="upper right")
     ax.set_title(title)
+    if with_clearance:
+        _clearance_panel(axc, runs)
+    return _save(fig, path)
+
+
+def _clearance_panel(ax, runs: Sequence[RunResult]) -> None:
+    """Clearance of the drone's centre to the turbine mesh over time (window minima, so thinning
+    does not hide a close pass), d_min dashed."""
+    d_mins = sorted({v for r in runs if np.isfinite(v := float(r.metrics.get("d_min_m", np.nan)))})
+    for d_min in d_mins:
+        ax.axhline(d_min, color="k", lw=0.8, ls="--", label=f"d_min = {d_min:g} m")
+    hi = 0.0
+    for i, r in enumerate(runs):
+        a = r.arrays
+        if "clearance" not in a:
+            continue
+        sel = _thin(len(a["t"]))
+        c = _window_min(a["clearance"].astype(float))
+        ax.plot(a["t"][sel], c, color=_color(r.spec.controller, i), lw=0.8,
+                label=f"{display_name(r.spec.controller)} (min {r.metrics.get('clearance_min_m', np.nan):.2f} m, "
+                      f"{r.metrics.get('time_below_d_min_s', np.nan):.1f} s below d_min)")
+        if np.isfinite(c).any():
+            hi = max(hi, float(np.nanpercentile(c, 99)))
+    ax.set_ylim(0.0, max(hi, *d_mins, 1.0) * 1.15)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("clearance to the turbine [m]")
+    ax.legend(fontsize=8, loc="upper right")
+
+
+def _window_mean(values: np.ndarray) -> np.ndarray:
+    """Mean of each thinning window of :func:`_thin` (a 100 Hz power signal drawn at 6k points)."""
+    step = max(1, len(values) // MAX_LINE_POINTS)
+    n = len(_thin(len(values)))
+    pad = np.full(n * step, np.nan)
+    pad[:len(values)] = values[:n * step]
+    return np.nanmean(pad.reshape(n, step), axis=1)
+
+
+def energy(runs: Sequence[RunResult], path: Path, title: str) -> Path:
+    """Electrical power over time, and the energy used so far minus what hovering would have used
+    in the same time (trapezoid over the recorded samples): most of a mission's energy is holding
+    the drone up, so the totals of two controllers draw as one line while their difference to
+    hover separates them. The legend's numbers are the run's metrics (every control step)."""
+    fig, (axp, axe) = plt.subplots(2, 1, figsize=(11, 7), sharex=True)
+    for i, r in enumerate(runs):
+        a = r.arrays
+        if "power" not in a:
+            continue
+        t, P = a["t"].astype(float), a["power"].astype(float)
+        sel = _thin(len(t))
+        color = _color(r.spec.controller, i)
+        m = r.metrics
+        axp.plot(t[sel], _window_mean(P), color=color, lw=0.8,
+                 label=f"{display_name(r.spec.controller)} (mean {m.get('mean_power_w', np.nan):.0f} W)")
+        cum = np.concatenate([[0.0], np.cumsum(0.5 * (P[1:] + P[:-1]) * np.diff(t))]) / 3600.0
+        hover = float(m.get("hover_power_w", np.nan))
+        above = cum - (hover if np.isfinite(hover) else 0.0) * (t - t[0]) / 3600.0
+        axe.plot(t[sel], above[sel], color=color, lw=1.0,
+                 label=f"{display_name(r.spec.controller)}: {m.get('energy_wh', np.nan):.2f} Wh, "
+                       f"path {m.get('path_length_m', np.nan):.0f} m")
+    hover = sorted({v for r in runs if "power" in r.arrays
+                    and np.isfinite(v := float(r.metrics.get("hover_power_w", np.nan)))})
+    for h in hover:
+        axp.axhline(h, color="k", lw=0.8, ls="--", label=f"hover power {h:.0f} W")
+    axp.set_ylabel("electrical power [W]")
+    axp.legend(fontsize=8, loc="upper right")
+    axp.set_title(title)
+    axe.set_xlim(0, max(float(r.arrays["t"][-1]) for r in runs))
+    axe.set_xlabel("time [s]")
+    axe.axhline(0.0, color="k", lw=0.6)
+    axe.set_ylabel("energy used minus hovering\nfor the same time [Wh]")
+    axe.legend(fontsize=8, loc="upper right")
     return _save(fig, path)
 
 
@@ -250,7 +334,10 @@ def make_figures(results: Sequence[RunResult], out_dir: str | Path, scenario: st
         tag = f"w{wind:g}"
         ttl = f"{scenario}, mean wind {wind:g} m/s (seed {runs[0].spec.seed})"
         written += [trajectories(runs, out / f"trajectories_{tag}{ext}", f"Trajectories: {ttl}"),
-                    distance(runs, out / f"distance_{tag}{ext}", f"Distance to the surface: {ttl}"),
+                    distance(runs, out / f"distance_{tag}{ext}", f"Distance to the inspection point, clearance to the "
+                             f"turbine: {ttl}"),
                     centering(runs, out / f"centering_{tag}{ext}", f"Centering: {ttl}"),
                     coverage_map(runs, out / f"coverage_{tag}{ext}", f"Coverage map: {ttl}")]
+        if any("power" in r.arrays for r in runs):
+            written.append(energy(runs, out / f"energy_{tag}{ext}", f"Energy: {ttl}"))
     return written

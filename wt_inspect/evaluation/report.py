@@ -4,7 +4,15 @@ The paper's simulation table has the controllers as columns (NMPC, PAMPC, VT-NMP
 metrics as rows (coverage, safety SM, quality CM), plus distances in the text. results.md keeps
 that layout, one table per wind speed, each controller's column followed by the paper's number
 for the same cell (``-`` where the paper gives none). With several seeds a cell is the mean over
-seeds (minimum distance: the minimum; collisions: the sum), and the number of seeds is stated.
+seeds (minimum distance and clearance: the minimum; collisions: the sum), and the number of seeds
+is stated.
+
+Two different distances are reported, named apart on purpose: the *distance to the inspection
+point* (``mean_distance`` / ``min_distance``: the paper's d, horizontal, to the moving point the
+camera looks at) and the *clearance to the turbine* (``clearance_min_m`` ...: to the nearest point
+of the turbine's mesh, what decides whether the drone hits a blade edge, the hub or the tower).
+A drone can keep 6.5 m from the point while passing 2 m from the structure. Energy, mean power
+and path length price the flight (see :mod:`.harness_metrics`).
 """
 from __future__ import annotations
 
@@ -30,7 +38,8 @@ from .scenarios import PAPER_RESULTS, get_scenario, paper_numbers
 CSV_COLUMNS = ("scenario", "controller", "wind", "seed", "coverage", "safety", "centering", "centering_body",
                "mean_distance",
                "min_distance", "max_distance", "rms_distance_error", "collisions", "flight_time", "path_length",
-               "mean_heading_error_deg", "solve_median_ms", "solve_p99_ms", "act_median_ms", "act_p99_ms",
+               "mean_heading_error_deg", "clearance_min_m", "clearance_body_min_m", "time_below_d_min_s", "d_min_m",
+               "energy_wh", "mean_power_w", "solve_median_ms", "solve_p99_ms", "act_median_ms", "act_p99_ms",
                "termination", "mission_complete", "steps", "sim_time", "wall_time", "run_file")
 PAPER_ORDER = ("nmpc", "pampc", "vtnmpc")
 
@@ -121,14 +130,36 @@ def _ms(v: float) -> str:
     return "-" if v is None or not math.isfinite(v) else f"{v:.2f} ms"
 
 
+def _s(v: float) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.1f} s"
+
+
+def _wh(v: float) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.1f} Wh" if abs(v) >= 10 else f"{v:.2f} Wh"
+
+
+def _w(v: float) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.0f} W"
+
+
+def _path(v: float) -> str:
+    return "-" if v is None or not math.isfinite(v) else f"{v:.0f} m" if abs(v) >= 100 else f"{v:.1f} m"
+
+
 # rows of the paper-layout table: (label, csv column, formatter, aggregation over seeds)
 ROWS = (
     ("Coverage", "coverage", _pct, "mean"),
     ("Safety (SM)", "safety", _pct, "mean"),
     ("Quality (CM)", "centering", _pct, "mean"),
     ("CM with body-axis h", "centering_body", _pct, "mean"),
-    ("Mean distance", "mean_distance", _m, "mean"),
-    ("Minimum distance", "min_distance", _m, "min"),
+    ("Mean distance to the inspection point", "mean_distance", _m, "mean"),
+    ("Min distance to the inspection point", "min_distance", _m, "min"),
+    ("Min clearance to the turbine (centre)", "clearance_min_m", _m, "min"),
+    ("Min clearance of the body box (lower bound)", "clearance_body_min_m", _m, "min"),
+    ("Time below d_min", "time_below_d_min_s", _s, "mean"),
+    ("Energy", "energy_wh", _wh, "mean"),
+    ("Mean power", "mean_power_w", _w, "mean"),
+    ("Path length", "path_length", _path, "mean"),
     ("Collisions", "collisions", lambda v: "-" if not math.isfinite(v) else f"{v:.0f}", "sum"),
     ("Solve time (median)", "solve_median_ms", _ms, "mean"),
     ("Solve time (p99)", "solve_p99_ms", _ms, "mean"),
@@ -156,6 +187,31 @@ def _values(results: Sequence[RunResult], option: str, fmt: Callable[[Any], str]
     default = getattr(EnvConfig(), option)
     vals = sorted({r.spec.env_options.get(option, default) for r in results}, key=str)
     return " / ".join(fmt(v) for v in vals) if vals else fmt(default)
+
+
+def _values_of(results: Sequence[RunResult], key: str, fmt: Callable[[float], str]) -> str:
+    """The runs' distinct finite values of metric ``key``, formatted and joined (``-`` if none)."""
+    vals = sorted({float(v) for r in results if isinstance(v := r.metrics.get(key), (int, float))
+                   and math.isfinite(v)})
+    return " / ".join(fmt(v) for v in vals) if vals else "-"
+
+
+def _energy_note(results: Sequence[RunResult]) -> str:
+    """The drones' power-model parameters and hover power, from the runs' options (their preset)."""
+    from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+    default = EnvConfig().drone
+    names = sorted({str(r.spec.env_options.get("drone", default if isinstance(default, str) else default.name))
+                    for r in results}) or ["matrice100"]
+    parts = []
+    for name in names:
+        try:
+            p: QuadrotorParams = get_preset(name)
+        except ValueError:
+            continue
+        parts.append(f"`{name}`: rotor radius {p.prop_radius:g} m, figure of merit {p.figure_of_merit:g}, "
+                     f"motor + ESC efficiency {p.drive_efficiency:g}, air {p.air_density:g} kg/m^3, hover "
+                     f"power {p.hover_power:.0f} W")
+    return ("; ".join(parts) + ".") if parts else ""
 
 
 def _frames_note(results: Sequence[RunResult]) -> str:
@@ -187,8 +243,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     for wind in winds:
         at = [r for r in rows if r["wind"] == wind]
         seeds = sorted({int(r["seed"]) for r in at})
-        lines += [f"## Mean wind {wind:g} m/s" + (f" ({len(seeds)} seeds: mean; minimum distance: min; "
-                                                  "collisions: sum)" if len(seeds) > 1 else f" (seed {seeds[0]})"),
+        lines += [f"## Mean wind {wind:g} m/s" + (f" ({len(seeds)} seeds: mean; minimum distance and clearance: "
+                                                  "min; collisions: sum)" if len(seeds) > 1 else f" (seed {seeds[0]})"),
                   ""]
         header, rule = ["metric"], ["---"]
         for c in controllers:
@@ -199,6 +255,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
         lines += ["| " + " | ".join(header) + " |", "|" + "|".join(rule) + "|"]
         for label, col, fmt, how in ROWS:
             label_txt = label + (f" (±{results[0].safety_margin:g} m)" if col == "safety" else "")
+            if col == "time_below_d_min_s":
+                label_txt += f" ({_values_of(results, 'd_min_m', lambda v: f'{v:g} m')})"
             cells = [label_txt]
             for c in controllers:
                 runs = [r for r in at if r["controller"] == c]
@@ -216,13 +274,16 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                 ends.append(f"{display_name(c)}: {', '.join(kinds)}")
         lines += ["", "Ended: " + "; ".join(ends) + ".", ""]
     lines += ["## All runs", "",
-              "| controller | wind | seed | coverage | SM | CM | mean d | min d | collisions | flight time "
+              "| controller | wind | seed | coverage | SM | CM | mean d to point | min d to point "
+              "| min clearance | below d_min | energy | mean power | path | collisions | flight time "
               "| solve median / p99 | ended | wall time |",
-              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|"]
+              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|"]
     for r in rows:
         lines.append(f"| {display_name(r['controller'])} | {r['wind']:g} | {r['seed']} | {_pct(r['coverage'])} | "
                      f"{_pct(r['safety'])} | {_pct(r['centering'])} | {_m(r['mean_distance'])} | "
-                     f"{_m(r['min_distance'])} | {r['collisions']} | {r['flight_time']:.0f} s | "
+                     f"{_m(r['min_distance'])} | {_m(r['clearance_min_m'])} | {_s(r['time_below_d_min_s'])} | "
+                     f"{_wh(r['energy_wh'])} | {_w(r['mean_power_w'])} | {_path(r['path_length'])} | "
+                     f"{r['collisions']} | {r['flight_time']:.0f} s | "
                      f"{_ms(r['solve_median_ms'])} / {_ms(r['solve_p99_ms'])} | {r['termination']} | "
                      f"{r['wall_time']:.0f} s |")
     paper_src = {"paper": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text (distances; "
@@ -243,7 +304,20 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
               "function h of the gimbal camera (the horizontal part of the body x axis, as the authors' code "
               "computed it); \"CM with body-axis h\" uses the paper's printed full-attitude formula, which "
               "drops by cos(tilt) when the drone leans into the wind while the image stays centred; all at "
-              f"every control step ({_values(results, 'ctrl_hz', lambda v: f'{1.0 / float(v):g} s')}).",
+              f"every control step ({_values(results, 'ctrl_hz', lambda v: f'{1.0 / float(v):g} s')}). "
+              "\"Distance to the inspection point\" is that d; it is not the distance to the turbine.",
+              "- Clearance (wt_inspect.evaluation.harness_metrics): distance from the drone's centre to the nearest "
+              "point of the turbine's collision mesh (blades, hub, nacelle, tower; the rotor position in force at "
+              "each control step), its minimum over the whole flight and the time spent below d_min = 3/7 d_ref "
+              "(the MPCs' default clearance constraint: 3 m at 7 m); the body-box row subtracts the radius of the "
+              "sphere round the drone's collision box, a lower bound of the box's distance.",
+              "- Energy: per rotor momentum theory's ideal induced power T^1.5 / sqrt(2 rho A) over the figure of "
+              "merit and the motor + ESC efficiency, summed over the rotors and integrated over the flight "
+              f"(trapezoid at every control step); {_energy_note(results)} Typical published values for small "
+              "multirotor propellers, not measured on the airframe; forward-flight inflow, avionics and idle "
+              "draw are not modelled, so compare controllers with it rather than read battery life off it. "
+              "Mean power = energy / flight time; path length = sum of the distances between consecutive "
+              "positions.",
               f"- Hardware: {hardware()}.",
               f"- Backend: {ctx.backend}, {ctx.jobs} parallel jobs; wall time of this invocation "
               f"{ctx.wall_time_s:.0f} s ({ctx.n_ran} runs executed, {ctx.n_resumed} resumed from earlier run files)."]

@@ -34,6 +34,11 @@ key                  shape/dtype  meaning
 ``latency_ms``       (N,) f4      the policy's observation-to-command latency
                                   (``last_stats.latency_ms``, else its ``solve_ms``), NaN if
                                   it reports neither; NaN for the last sample
+``clearance``        (N,) f4      distance of the drone's centre to the turbine mesh in force
+                                  at the sample [m] (see :mod:`.harness_metrics`: exact where
+                                  it can be the minimum or below d_min, never below the truth)
+``rotor_thrust``     (N,4) f4     the four rotor thrusts [N] (simulator's rotor state)
+``power``            (N,) f4      electrical power of those thrusts [W] (the energy model)
 ``coverage_counts``  (M,) i4      frames in which each mission triangle was seen
 ``inspected``        (M,) i4      indices of those triangles in the turbine's blade arrays
 ``blade_triangles``  (P,B,3,3) f4 the turbine's blade triangles in each of its P phases
@@ -43,7 +48,8 @@ key                  shape/dtype  meaning
 ===================  ===========  =========================================================
 
 ``record_every`` > 1 keeps every k-th sample (and always the last) to make files smaller; the
-metrics are always those of the environment over every step.
+metrics are always those of the environment over every step, plus the harness's own clearance
+and energy metrics (:mod:`.harness_metrics`), also over every step.
 """
 from __future__ import annotations
 
@@ -64,16 +70,22 @@ from wt_inspect_env.atomic_io import atomic_path
 from wt_inspect_env.geometry import camera_heading, heading_and_distance
 
 from . import registry
+from .harness_metrics import D_MIN_RATIO, clearance_metrics, energy_metrics, geometry_index, mesh_clearance, rotor_power
 
 FORMAT = "wt-inspect-run/1"
 ENV_ID = "WindTurbineInspection-v0"   # the task comes from the options
-# Metric columns of a run (results.csv): name -> key of InspectionMetrics.
+# Metric columns of a run (results.csv): name -> key of the run's metrics (InspectionMetrics, and
+# the harness's clearance and energy metrics). ``*_distance`` are to the inspection point;
+# ``clearance_*`` to the turbine's mesh.
 METRIC_COLUMNS = {
     "coverage": "coverage", "safety": "safety_sm", "centering": "centering_cm",
     "centering_body": "centering_body_cm",
     "mean_distance": "mean_distance_m", "min_distance": "min_distance_m", "max_distance": "max_distance_m",
     "rms_distance_error": "rms_distance_error_m", "collisions": "collisions", "flight_time": "flight_time_s",
     "path_length": "path_length_m", "mean_heading_error_deg": "mean_heading_error_deg",
+    "clearance_min_m": "clearance_min_m", "clearance_body_min_m": "clearance_body_min_m",
+    "time_below_d_min_s": "time_below_d_min_s", "d_min_m": "d_min_m",
+    "energy_wh": "energy_wh", "mean_power_w": "mean_power_w",
 }
 
 ProgressCallback = Callable[[float, float], None]
@@ -81,7 +93,7 @@ ProgressCallback = Callable[[float, float], None]
 
 # The harness's own modules that decide a run's outcome (the episode loop, the scenarios' options,
 # name resolution); its reporting, figures and backends only present or schedule results.
-_HARNESS_SOURCES = ("runner.py", "scenarios.py", "registry.py")
+_HARNESS_SOURCES = ("runner.py", "harness_metrics.py", "scenarios.py", "registry.py")
 
 
 def code_sources() -> list[Path]:
@@ -178,7 +190,7 @@ class RunResult:
     recorded trajectory (see the module docstring for the arrays)."""
 
     spec: RunSpec
-    metrics: dict[str, Any]
+    metrics: dict[str, Any]      # InspectionMetrics (the env's) + the harness's (harness_metrics)
     termination: str | None
     mission_complete: bool
     steps: int
@@ -241,10 +253,65 @@ class _Recorder:
         return self.n - 1
 
     def arrays(self, every: int) -> dict[str, np.ndarray]:
-        idx = np.arange(0, self.n, every)
-        if self.n and idx[-1] != self.n - 1:
-            idx = np.append(idx, self.n - 1)
+        idx = _kept(self.n, every)
         return {k: v[idx] for k, v in self.buf.items()}
+
+
+def _kept(n: int, every: int) -> np.ndarray:
+    """Rows a run file keeps of ``n``: every ``every``-th and always the last."""
+    idx = np.arange(0, n, every)
+    if n and idx[-1] != n - 1:
+        idx = np.append(idx, n - 1)
+    return idx
+
+
+class _Track:
+    """What the harness's own metrics need at every control step, recorded even without
+    ``record`` (a few float64s per step): time, the drone's true position (not the observation,
+    which domain randomisation may make noisy), whether the reference waits for the rotor turn
+    (which mesh is in force) and the four rotor thrusts."""
+
+    def __init__(self, capacity: int) -> None:
+        n = max(capacity, 16)
+        self.n = 0
+        self.t, self.pos, self.thrust = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 4))
+        self.waiting = np.zeros(n, dtype=bool)
+
+    def add(self, sim: Any, info: Mapping[str, Any]) -> None:
+        if self.n == len(self.t):
+            self.t, self.pos, self.thrust, self.waiting = (np.concatenate([a, np.zeros_like(a)]) for a in
+                                                           (self.t, self.pos, self.thrust, self.waiting))
+        i = self.n
+        self.t[i] = info["time"]
+        self.pos[i], self.thrust[i] = _position_and_thrusts(sim)
+        self.waiting[i] = info["waiting_for_phase_change"]
+        self.n += 1
+
+    def results(self, env: Any) -> tuple[dict[str, float], dict[str, np.ndarray]]:
+        """The clearance and energy metrics (see :mod:`.harness_metrics`) and their per-sample
+        arrays (clearance [m], rotor thrusts [N], power [W])."""
+        n, sim = self.n, env.sim
+        t = self.t[:n]
+        turbines = env.mission.turbines
+        geo = geometry_index(self.waiting[:n], len(turbines))
+        d_min = D_MIN_RATIO * float(env.config.standoff)
+        clearance = mesh_clearance(self.pos[:n], [tb.mesh for tb in turbines], geo, d_min=d_min)
+        plant = _plant(sim)
+        power = rotor_power(plant, self.thrust[:n])
+        body_radius = float(np.linalg.norm(env.params.collision_half_extents))   # the nominal box collides
+        metrics = clearance_metrics(t, clearance, d_min, body_radius) | energy_metrics(t, power, plant)
+        return metrics, {"clearance": clearance, "rotor_thrust": self.thrust[:n], "power": power}
+
+
+def _position_and_thrusts(sim: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The drone's world position (3,) and its four rotor thrusts [N] (4,) (times the plant's
+    thrust factor) from the environment's simulator (its world's, of which the drone is row 0)."""
+    return sim.state[0, 0:3], sim.f[0] * sim.thrust_scales[0]
+
+
+def _plant(sim: Any) -> Any:
+    """The airframe the simulator integrates (domain randomisation may change it), drone 0's."""
+    return sim.plants[0]
 
 
 def _record(rec: _Recorder, env: Any, obs: Mapping[str, np.ndarray], info: Mapping[str, Any]) -> int:
@@ -325,7 +392,9 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
     policy.reset(seed=spec.seed)
     limit = u.time_limit if spec.max_time is None else min(u.time_limit, spec.max_time)
     rec = _Recorder(int(limit / u.dt) + 2 if record else 0)
+    track = _Track(int(limit / u.dt) + 2)
     i = _record(rec, u, obs, info) if record else 0
+    track.add(u.sim, info)
     termination, complete, steps = None, False, 0
     solve: list[float] = []
     act_ms: list[float] = []
@@ -343,6 +412,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
             rec.buf["latency_ms"][i] = _latency_ms(policy)
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
+        track.add(u.sim, info)
         if record:
             i = _record(rec, u, obs, info)
         if terminated or truncated:
@@ -359,9 +429,12 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         progress(float(info["time"]), float(limit))
     med, p99 = _stats_ms(np.asarray(solve))
     amed, ap99 = _stats_ms(np.asarray(act_ms))
+    extra, per_sample = track.results(u)
     arrays: dict[str, np.ndarray] = {}
     if record:
         arrays = rec.arrays(spec.record_every)
+        kept = _kept(track.n, spec.record_every)
+        arrays.update({k: np.asarray(v[kept], dtype=np.float32) for k, v in per_sample.items()})
         arrays["coverage_counts"] = np.asarray(u.coverage_counts, dtype=np.int32)
         arrays["inspected"] = np.asarray(u.mission.inspected, dtype=np.int32)
         arrays["blade_triangles"] = np.stack([t.blade_vertices for t in u.mission.turbines]).astype(np.float32)
@@ -369,7 +442,8 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         arrays["triangle_blade"] = np.asarray(t0.triangle_blade, dtype=np.int16)
         arrays["triangle_face"] = np.asarray(t0.triangle_face, dtype=np.int16)
         arrays["rotor_center"] = np.asarray(t0.rotor_center, dtype=np.float64)
-    return RunResult(spec=spec, metrics=dict(info["metrics"]), termination=termination, mission_complete=complete,
+    return RunResult(spec=spec, metrics=dict(info["metrics"]) | extra, termination=termination,
+                     mission_complete=complete,
                      steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,
                      solve={"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99},
                      d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays,
