@@ -109,6 +109,7 @@ class BatchedQuadrotorSim:
         self.steps = np.zeros(n, dtype=np.int64)
         self.in_collision = np.zeros(n, dtype=bool)
         self.last_wind = core.winds
+        self._kin_out, self._kin_rates = np.zeros((n, 10)), np.zeros((n, 3))
 
     @property
     def f(self) -> np.ndarray:
@@ -315,22 +316,14 @@ class BatchedQuadrotorSim:
 
     def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(state (n, 10), body rates (n, 3)), computed once per step or reset (the env layer reads
-        them several times a step) and handed out as copies."""
-        key = self._version
-        if self._kin_key != key:
-            R = self.rotation()
-            vx, vy, vz = self.vel[:, 0], self.vel[:, 1], self.vel[:, 2]
-            out = np.empty((self.n, 10))
-            out[:, 0:3] = self.pos
-            out[:, 3] = R[0] * vx + R[3] * vy + R[6] * vz
-            out[:, 4] = R[1] * vx + R[4] * vy + R[7] * vz
-            out[:, 5] = R[2] * vx + R[5] * vy + R[8] * vz
-            out[:, 6:10] = self.quat
-            ox, oy, oz = self.omega[:, 0], self.omega[:, 1], self.omega[:, 2]
-            rates = np.stack([R[0] * ox + R[3] * oy + R[6] * oz,
-                              R[1] * ox + R[4] * oy + R[7] * oz,
-                              R[2] * ox + R[5] * oy + R[8] * oz], axis=1)
-            self._kin, self._kin_key = (out, rates), key
+        them several times a step; compiled, :func:`bullet_rotation`'s arithmetic) and handed out
+        as copies."""
+        if self._kin_key != self._version:
+            from . import world_core as wc
+            out, rates = self._kin_out, self._kin_rates
+            wc.library().wt_body_frame(self.n, wc.addr(self.pos), wc.addr(self.vel), wc.addr(self.omega),
+                                       wc.addr(self.quat), wc.addr(out), wc.addr(rates))
+            self._kin, self._kin_key = (out, rates), self._version
         return self._kin
 
     @property

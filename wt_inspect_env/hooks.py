@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .step_terms import observations, reward_terms
+from .step_terms import observations, reward_terms, termination_codes
 
 if TYPE_CHECKING:  # pragma: no cover
     from .world import InspectionWorld
@@ -61,12 +61,6 @@ class TaskHooks:
         """Termination code per drone (0: goes on): a non-finite state, a collision, leaving the
         working volume or, with ``pose_error_limit``, straying from the stand-off pose (not while
         the reference waits for the rotor turn)."""
-        p = np.where(finite[:, None], state[:, 0:3], 0.0)
-        left = np.any(p < world.volume_lo, axis=1) | np.any(p > world.volume_hi, axis=1)
-        code = np.where(~finite, 1, np.where(collision, 2, np.where(left, 3, 0)))
-        limit = world.config.pose_error_limit
-        if limit is not None:
-            s = world.reference.sample
-            lost = ~s.waiting_for_phase_change & (np.linalg.norm(p - s.ideal_position, axis=1) > limit)
-            code = np.where((code == 0) & lost, 4, code)
-        return code
+        s = world.reference.sample
+        return termination_codes(state, collision, world.volume_lo, world.volume_hi, s.ideal_position,
+                                 s.waiting_for_phase_change, world.config.pose_error_limit)

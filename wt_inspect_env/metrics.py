@@ -42,6 +42,7 @@ sequential sums through ``np.cumsum``, ``math.atan2``/``math.acos`` per sample),
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
@@ -49,8 +50,6 @@ import numpy as np
 
 from .geometry import heading_and_distance  # noqa: F401 - the per-step h and d (held to the accumulator by the tests)
 from .validation import check_array, check_field_types, check_positive
-
-RAD2DEG = 180.0 / math.pi
 
 
 @dataclass(frozen=True)
@@ -254,45 +253,11 @@ class MetricAccumulator:
         return self._batch.result(0)
 
 
-def _seq_sum(values: np.ndarray) -> float:
-    """Left-to-right sum (what ``+=`` in a loop gives), unlike ``np.sum``'s pairwise order."""
-    return float(np.cumsum(values)[-1]) if len(values) else 0.0
-
-
-def inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn) -> tuple[np.ndarray, ...]:
-    """Per-sample inspection quantities of arrays of samples - ``(h, hb, herr, d, inc, o, dist3)``
-    (see the module docstring) - from positions, quaternions with their squared norm ``qq``, points
-    and normals with their norm ``nn``. Element-wise, with ``atan2``/``acos`` per sample through
-    :mod:`math`, so a sample's numbers do not depend on the batch it is in: :func:`compute_metrics`
-    (recorded flights) and :class:`BatchedMetrics` (every environment) agree bit for bit."""
-    ax, ay, az = p0 - x0, p1 - x1, p2 - x2
-    bx0 = 1.0 - 2.0 * (qy * qy + qz * qz) / qq
-    bx1 = 2.0 * (qx * qy + qw * qz) / qq
-    dot = bx0 * ax + bx1 * ay
-    crs = bx0 * ay - bx1 * ax
-    d = np.sqrt(ax * ax + ay * ay)
-    bxy = np.sqrt(bx0 * bx0 + bx1 * bx1)
-    ok = (d > 1e-9) & (bxy > 1e-9)
-    hb = np.where(ok, dot / np.where(ok, d, 1.0), 0.0)
-    h = np.where(ok, hb / np.where(ok, bxy, 1.0), 0.0)
-    herr = np.array([RAD2DEG * math.atan2(c, v) if k else 90.0
-                     for c, v, k in zip(np.abs(crs).tolist(), dot.tolist(), ok.tolist())])
-    u0, u1, u2 = n0 / nn, n1 / nn, n2 / nn
-    a_n = ax * u0 + ay * u1 + az * u2
-    dist3 = np.sqrt(ax * ax + ay * ay + az * az)
-    far = dist3 > 1e-9
-    cosi = np.minimum(1.0, np.maximum(-1.0, -a_n / np.where(far, dist3, 1.0)))
-    inc = np.array([RAD2DEG * math.acos(c) if k else 90.0 for c, k in zip(cosi.tolist(), far.tolist())])
-    o0, o1, o2 = ax - a_n * u0, ay - a_n * u1, az - a_n * u2
-    o = np.sqrt(o0 * o0 + o1 * o1 + o2 * o2)
-    return h, hb, herr, d, inc, o, dist3
-
-
 def compute_metrics(t, positions, quaternions, points, normals, *, collisions=None, n_new=None, n_visible=None,
                     d_ref=None, inspecting=None, n_triangles: int | None = None,
                     config: MetricsConfig | None = None) -> InspectionMetrics:
-    """Metrics of a whole recorded trajectory of N samples (vectorised; same numbers as
-    :class:`MetricAccumulator` fed the same samples).
+    """Metrics of a whole recorded trajectory of N samples (validated, then the environments' own
+    accumulation fed them in order: the same numbers as :class:`MetricAccumulator`).
 
     ``t`` (N,), ``positions`` (N, 3), ``quaternions`` (N, 4), ``points`` (N, 3), ``normals`` (N, 3);
     optional ``collisions`` (N,) bool, ``n_new`` / ``n_visible`` (N,) non-negative counts, ``d_ref``
@@ -342,46 +307,13 @@ def compute_metrics(t, positions, quaternions, points, normals, *, collisions=No
             i = int(np.flatnonzero(bad)[0])
             raise ValueError(f"metrics {name} must be non-zero, got {(Q if name == 'quaternions' else Nv)[i].tolist()} "
                              f"at sample {i}")
-    tot = _Totals(n=N)
-    if N:
-        tot.t_first, tot.t_last = float(T[0]), float(T[-1])
-        dX = np.diff(X, axis=0)
-        tot.path = _seq_sum(np.sqrt(dX[:, 0] * dX[:, 0] + dX[:, 1] * dX[:, 1] + dX[:, 2] * dX[:, 2]))
-        prev = np.concatenate([[False], col[:-1]])
-        tot.col_events = int(np.count_nonzero(col & ~prev))
-        tot.col_samples = int(np.count_nonzero(col))
-        tot.new, tot.vis = int(new.sum()), int(vis.sum())
-    sel = np.flatnonzero(insp)
-    tot.n_insp = len(sel)
-    if len(sel):
-        x0, x1, x2 = X[sel].T
-        p0, p1, p2 = P[sel].T
-        qx, qy, qz, qw, qq = qx[sel], qy[sel], qz[sel], qw[sel], qq[sel]
-        n0, n1, n2, nn = n0[sel], n1[sel], n2[sel], nn[sel]
-        h, hb, herr, d, inc, o, dist3 = inspection_terms(x0, x1, x2, qx, qy, qz, qw, qq, p0, p1, p2, n0, n1, n2, nn)
-        err = d - dref[sel]
-        abs_err = np.abs(err)
-        tot.safe = int(np.count_nonzero(abs_err < config.safety_margin))
-        tot.sum_h, tot.min_h = _seq_sum(h), float(h.min())
-        tot.sum_hb = _seq_sum(hb)
-        tot.sum_herr, tot.max_herr = _seq_sum(herr), float(herr.max())
-        tot.sum_d, tot.min_d, tot.max_d = _seq_sum(d), float(d.min()), float(d.max())
-        tot.sum_err2, tot.max_abs_err = _seq_sum(err * err), float(abs_err.max())
-        tot.sum_inc, tot.max_inc = _seq_sum(inc), float(inc.max())
-        tot.sum_o, tot.sum_dist3 = _seq_sum(o), _seq_sum(dist3)
-    return _finish(tot, n_tri, config)
+    acc = BatchedMetrics(1, n_tri, config)       # the environments' accumulation, fed the samples in order
+    acc.add(np.zeros(N, dtype=np.int64), T, X, Q, P, Nv, col, new, vis, insp, d_ref=dref)
+    return acc.result(0)
 
 
 # ------------------------------------------------------------------------------------------ batched
-# The running inspection metrics of :class:`~wt_inspect_env.metrics.MetricAccumulator`, for N drones.
-#
-# The totals (counts, sums, minima, maxima) are arrays over drones, and :meth:`BatchedMetrics.add`
-# is the scalar ``add`` written over them: the per-sample quantities come from
-# :func:`~wt_inspect_env.metrics.inspection_terms`, the function :func:`compute_metrics` uses too. Every drone's
-# sums are still sequential in time, so :meth:`result` of drone ``i`` - built by the scalar
-# ``_finish`` - is bitwise the scalar accumulator's (tested). Inputs come from the environment, which
-# has validated them, so the per-sample checks of the scalar class are not repeated here.
-
+# Column order of BatchedMetrics' stacked totals (world_core.c writes them in this order).
 _SUMS = ("sum_h", "sum_hb", "sum_herr", "sum_d", "sum_err2", "sum_inc", "sum_o", "sum_dist3", "path")
 _MINS = ("min_h", "min_d")
 _MAXS = ("max_herr", "max_d", "max_abs_err", "max_inc")
@@ -392,10 +324,14 @@ class BatchedMetrics:
     """Per-drone metric totals; ``add`` one sample per drone and step, ``result(i)`` any time.
 
     The totals are four stacked arrays (sums, minima, maxima, counts; columns in the order of
-    ``_SUMS`` ... ``_COUNTS``), so one sample costs a few whole-row NumPy operations whatever N is;
-    each entry is still a sequential sum / extremum over its drone's samples."""
+    ``_SUMS`` ... ``_COUNTS``) that the compiled accumulation (:mod:`~wt_inspect_env.world_core`)
+    updates in place: each entry is a sequential sum / extremum over its drone's samples, computed
+    per drone with the same scalar arithmetic whatever N is."""
 
-    def __init__(self, n: int, n_triangles: int, config: MetricsConfig) -> None:
+    def __init__(self, n: int, n_triangles: int | None, config: MetricsConfig) -> None:
+        from . import world_core as wc
+
+        self._wc, self._lib = wc, wc.library()
         self.n, self.n_triangles, self.config = n, n_triangles, config
         self.sums = np.zeros((n, len(_SUMS)))
         self.mins = np.full((n, len(_MINS)), math.inf)
@@ -405,6 +341,14 @@ class BatchedMetrics:
         self.t_last = np.full(n, math.nan)
         self._prev = np.zeros((n, 3))
         self._prev_col = np.zeros(n, dtype=bool)
+        m = self._m = wc.Metrics()
+        for name, arr in (("sums", self.sums), ("mins", self.mins), ("maxs", self.maxs), ("counts", self.counts),
+                          ("t_first", self.t_first), ("t_last", self.t_last), ("prev", self._prev),
+                          ("prev_col", self._prev_col)):
+            setattr(m, name, wc.addr(arr))
+        m.safety_margin = config.safety_margin
+        self._mp = ctypes.addressof(m)
+        self._dref = np.array([config.d_ref])
 
     def n_samples(self, i: int) -> int:
         return int(self.counts[i, 0])
@@ -419,64 +363,24 @@ class BatchedMetrics:
 
     def add(self, idx: np.ndarray, t: np.ndarray, position: np.ndarray, quaternion: np.ndarray,
             point: np.ndarray, normal: np.ndarray, collision: np.ndarray, n_new: np.ndarray,
-            n_visible: np.ndarray, inspecting: np.ndarray, d_ref: float | None = None) -> None:
-        """One sample for each drone in ``idx`` (sorted; the other arguments are rows for those
-        drones; ``d_ref`` overrides the configuration's reference distance for this sample)."""
-        if len(idx) == 0:
+            n_visible: np.ndarray, inspecting: np.ndarray, d_ref: float | np.ndarray | None = None) -> None:
+        """Sample ``j`` of the arguments goes to drone ``idx[j]`` (a drone may appear several times,
+        in time order); ``d_ref`` overrides the configuration's reference distance (one value, or
+        one per sample)."""
+        k = len(idx)
+        if k == 0:
             return
-        full = len(idx) == self.n
-        rows = slice(None) if full else idx    # every drone: whole-array updates, no fancy indexing
-
-        def subset(mask: np.ndarray):
-            return rows if mask.all() else (np.flatnonzero(mask) if full else idx[mask])
-
-        counts = self.counts
-        first = counts[rows, 0] == 0
-        if first.any():
-            self.t_first[subset(first)] = t[first]
-        rest = ~first
-        if rest.any():
-            ir = subset(rest)
-            dv = position[rest] - self._prev[ir]
-            dx, dy, dz = dv[:, 0], dv[:, 1], dv[:, 2]
-            self.sums[ir, 8] += np.sqrt(dx * dx + dy * dy + dz * dz)
-        self.t_last[rows] = t
-        self._prev[rows] = position
-        col = collision.astype(bool)
-        inc_counts = np.empty((len(idx), 7), dtype=np.int64)
-        inc_counts[:, 0] = 1
-        inc_counts[:, 1] = 0
-        inc_counts[:, 2] = 0
-        inc_counts[:, 3] = col & ~self._prev_col[rows]
-        inc_counts[:, 4] = col
-        inc_counts[:, 5] = n_new
-        inc_counts[:, 6] = n_visible
-        self._prev_col[rows] = col
-        if not inspecting.any():
-            counts[rows] += inc_counts
-            return
-        if inspecting.all():
-            ii, sel = rows, slice(None)
+        wc = self._wc
+        if d_ref is None:
+            dref, stride = self._dref, 0
         else:
-            sel = np.flatnonzero(inspecting)
-            ii = subset(inspecting)
-        x, q, pt, nv = position[sel], quaternion[sel], point[sel], normal[sel]
-        qx, qy, qz, qw = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        n0, n1, n2 = nv[:, 0], nv[:, 1], nv[:, 2]
-        qq = qx * qx + qy * qy + qz * qz + qw * qw
-        nn = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        h, hb, herr, d, inc, o, dist3 = inspection_terms(x[:, 0], x[:, 1], x[:, 2], qx, qy, qz, qw, qq,
-                                                         pt[:, 0], pt[:, 1], pt[:, 2], n0, n1, n2, nn)
-        err = d - (self.config.d_ref if d_ref is None else d_ref)
-        abs_err = np.abs(err)
-        inc_counts[sel, 1] = 1
-        inc_counts[sel, 2] = abs_err < self.config.safety_margin
-        counts[rows] += inc_counts
-        sums = self.sums[ii]
-        sums[:, 0:8] += np.column_stack([h, hb, herr, d, err * err, inc, o, dist3])
-        self.sums[ii] = sums
-        self.mins[ii] = np.minimum(self.mins[ii], np.column_stack([h, d]))
-        self.maxs[ii] = np.maximum(self.maxs[ii], np.column_stack([herr, d, abs_err, inc]))
+            dref = np.ascontiguousarray(np.broadcast_to(np.asarray(d_ref, dtype=float), (k,)))
+            stride = 1
+        args = (wc.c_array(idx, np.int64), wc.c_array(t, float), wc.c_array(position, float),
+                wc.c_array(quaternion, float), wc.c_array(point, float), wc.c_array(normal, float),
+                wc.c_array(collision, np.bool_), wc.c_array(n_new, np.int64), wc.c_array(n_visible, np.int64),
+                wc.c_array(inspecting, np.bool_), dref)
+        self._lib.wt_metrics_add(self._mp, k, *(wc.addr(a) for a in args), stride)
 
     def result(self, i: int) -> InspectionMetrics:
         """Metrics of drone ``i`` since its last reset (the scalar ``_finish`` on its totals)."""

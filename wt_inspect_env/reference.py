@@ -43,6 +43,7 @@ interpolated and renormalised; the reported velocity is ``sigma * speed * dp/dta
 """
 from __future__ import annotations
 
+import ctypes
 import math
 from dataclasses import dataclass
 
@@ -247,15 +248,11 @@ class InspectionReference:
 
 
 # ------------------------------------------------------------------------------------------ batched
-# The inspection reference of :mod:`~wt_inspect_env.reference` for N drones at once.
-#
-# :class:`BatchedReference` advances N independent inspection points along the *same* planned path
-# (the runs, their tau parametrisation and the stacked geometry come from one
-# :class:`~wt_inspect_env.reference.InspectionReference`, so the path data has one home). Its state is
-# arrays - run index, tau, hold clock, done - and :meth:`step` is the scalar ``step`` written over
-# them with the same floating-point operations in the same order; ``math.hypot`` (which NumPy's
-# ``hypot`` need not match to the last bit) is evaluated per drone. Drone ``i`` therefore follows the
-# scalar reference bit for bit (tested).
+# The inspection reference for N drones at once: :class:`BatchedReference` advances N independent
+# inspection points along the *same* planned path (the runs and their tau parametrisation come from one
+# :class:`InspectionReference`, so the path data has one home), and :class:`InspectionReference` itself
+# steps through a batch of one. The arithmetic is compiled (world_core.c): per drone, scalar and in a
+# fixed order, so drone i of N and the only drone of a batch of one follow the same reference bit for bit.
 
 
 @dataclass
@@ -279,31 +276,67 @@ class BatchedSample:
 
 
 class BatchedReference:
-    """N inspection points on one path; see the module docstring."""
+    """N inspection points on one path; see the comment above. The stepping is compiled
+    (:mod:`~wt_inspect_env.world_core`); the state and the current sample are arrays written in
+    place (the :attr:`sample`'s arrays change at every step and reset - copy what you keep)."""
 
     def __init__(self, reference: InspectionReference, n: int) -> None:
+        from . import world_core as wc
+
+        self._wc = wc
+        self._lib = wc.library()
         self.ref = reference
         self.n = n
         cfg = reference.config
-        self._runs = reference._runs
-        self._offsets = reference._run_offsets
+        runs = reference._runs
         self.total_length = reference.total_length
-        self._closed = cfg.mode == "closed_loop"
-        self._inv_band = reference._inv_band
-        self._speed = cfg.speed
-        self._stop = cfg.stop_threshold
-        self._standoff = cfg.standoff
-        self._hold_limit = cfg.phase_hold_time
+        counts = np.array([len(r.tau) for r in runs], dtype=np.int64)
+        self._path_arrays = {
+            "run_start": np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64),
+            "run_count": counts,
+            "run_length": np.array([r.length for r in runs], dtype=float),
+            "run_offset": np.ascontiguousarray(reference._run_offsets[:-1], dtype=float),
+            "run_phase": np.array([r.phase for r in runs], dtype=np.int64),
+            "tau": np.concatenate([r.tau for r in runs]).astype(float),
+            "dtau": np.concatenate([np.append(r.dtau, 0.0) for r in runs]).astype(float),
+            "geom": np.ascontiguousarray(np.concatenate([r.geom for r in runs]), dtype=float),
+            "dp_dtau": np.ascontiguousarray(np.concatenate([np.vstack([r.dp_dtau, np.zeros((1, 3))]) for r in runs]),
+                                            dtype=float),
+            "normals": np.ascontiguousarray(np.concatenate([r.normals for r in runs]), dtype=float),
+            "hdir": np.ascontiguousarray(np.concatenate([r.hdir for r in runs]), dtype=float),
+        }
+        path = self._path = wc.RefPath()
+        path.n_runs = len(runs)
+        for name, arr in self._path_arrays.items():
+            setattr(path, name, wc.addr(arr))
+        path.total_length, path.speed, path.stop = self.total_length, cfg.speed, cfg.stop_threshold
+        path.inv_band, path.standoff = reference._inv_band, cfg.standoff
+        path.hold_limit = math.nan if cfg.phase_hold_time is None else cfg.phase_hold_time
+        path.closed = int(cfg.mode == "closed_loop")
         self.run = np.zeros(n, dtype=np.int64)
-        self.tau = np.zeros(n)
-        self.time = np.zeros(n)
-        self.holding = np.zeros(n, dtype=bool)
-        self.hold_elapsed = np.zeros(n)
-        self.done = np.zeros(n, dtype=bool)
-        self.release = np.zeros(n, dtype=bool)
+        self.tau, self.time, self.hold_elapsed = np.zeros(n), np.zeros(n), np.zeros(n)
+        self.holding, self.done, self.release = (np.zeros(n, dtype=bool) for _ in range(3))
         self.ideal = np.zeros((n, 3))
-        self._sample = self._compute(np.arange(n), np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=bool),
-                                     np.full(n, math.nan))
+        self._sample = BatchedSample(
+            point=np.zeros((n, 3)), normal=np.zeros((n, 3)), velocity=np.zeros((n, 3)), ideal_position=self.ideal,
+            phase=np.zeros(n, dtype=np.int64), progress=np.zeros(n), done=np.zeros(n, dtype=bool),
+            waiting_for_phase_change=np.zeros(n, dtype=bool), hold_started=np.zeros(n, dtype=bool),
+            phase_changed=np.zeros(n, dtype=bool), s=np.zeros(n), speed_factor=np.zeros(n), lag=np.zeros(n),
+            time=np.zeros(n))
+        st = self._state = wc.RefState()
+        smp = self._sample
+        for name, arr in (("run", self.run), ("tau", self.tau), ("time", self.time),
+                          ("hold_elapsed", self.hold_elapsed), ("holding", self.holding), ("done", self.done),
+                          ("release", self.release), ("point", smp.point), ("normal", smp.normal),
+                          ("velocity", smp.velocity), ("ideal", self.ideal), ("phase", smp.phase),
+                          ("progress", smp.progress), ("s_done", smp.done),
+                          ("waiting", smp.waiting_for_phase_change), ("hold_started", smp.hold_started),
+                          ("phase_changed", smp.phase_changed), ("s", smp.s), ("speed_factor", smp.speed_factor),
+                          ("lag", smp.lag), ("s_time", smp.time)):
+            setattr(st, name, wc.addr(arr))
+        self._pp, self._sp = ctypes.addressof(path), ctypes.addressof(st)
+        all_idx = np.arange(n, dtype=np.int64)
+        self._lib.wt_ref_sample(self._pp, self._sp, n, wc.addr(all_idx))
 
     @property
     def config(self) -> ReferenceConfig:
@@ -317,15 +350,14 @@ class BatchedReference:
         """Back to the start (or ``start_fraction`` of the first phase) for drone ``i``; the new
         sample is in :attr:`sample`."""
         self.run[i] = 0
-        self.tau[i] = start_fraction * self._runs[0].length
+        self.tau[i] = start_fraction * self.ref._runs[0].length
         self.time[i] = 0.0
         self.holding[i] = False
         self.hold_elapsed[i] = 0.0
         self.done[i] = False
         self.release[i] = False
-        idx = np.array([i])
-        self._write(idx, self._compute(idx, np.zeros(1), np.zeros(1, dtype=bool), np.zeros(1, dtype=bool),
-                                       np.full(1, math.nan)))
+        idx = np.array([i], dtype=np.int64)
+        self._lib.wt_ref_sample(self._pp, self._sp, 1, idx.ctypes.data)
 
     def release_hold(self, i: int) -> None:
         """End drone ``i``'s phase-change hold at its next step (needed when ``phase_hold_time`` is None)."""
@@ -334,123 +366,8 @@ class BatchedReference:
 
     def step(self, dt: float, positions: np.ndarray) -> BatchedSample:
         """Advance every drone's point by ``dt`` given the drone positions (N, 3) (closed loop)."""
-        q = self.ideal
-        d0, d1, d2 = positions[:, 0] - q[:, 0], positions[:, 1] - q[:, 1], positions[:, 2] - q[:, 2]
-        lag = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-        self.time += dt
-        done0, hold0 = self.done.copy(), self.holding.copy()
-        sigma = np.zeros(self.n)
-        hold_started = np.zeros(self.n, dtype=bool)
-        phase_changed = np.zeros(self.n, dtype=bool)
-        # Holding drones: count the hold, then release into the next run.
-        h = np.flatnonzero(hold0 & ~done0)
-        if len(h):
-            self.hold_elapsed[h] += dt
-            due = self.release[h]
-            if self._hold_limit is not None:
-                due = due | (self.hold_elapsed[h] >= self._hold_limit - 1e-12)
-            rel = h[due]
-            self.holding[rel] = False
-            self.release[rel] = False
-            self.run[rel] += 1
-            self.tau[rel] = 0.0
-            phase_changed[rel] = True
-        # Moving drones.
-        m = np.flatnonzero(~hold0 & ~done0)
-        if len(m):
-            if self._closed:
-                sm = np.sqrt(np.minimum(1.0, np.maximum(0.0, (self._stop - lag[m]) * self._inv_band)))
-            else:
-                sm = np.ones(len(m))
-            sigma[m] = sm
-            self.tau[m] += sm * self._speed * dt
-            lengths = np.array([r.length for r in self._runs])[self.run[m]]
-            end = self.tau[m] >= lengths
-            if end.any():
-                e = m[end]
-                self.tau[e] = lengths[end]
-                last = self.run[e] == len(self._runs) - 1
-                self.done[e[last]] = True
-                hs = e[~last]
-                self.holding[hs] = True
-                self.hold_elapsed[hs] = 0.0
-                hold_started[hs] = True
-        all_idx = np.arange(self.n)
-        self._write(all_idx, self._compute(all_idx, sigma, hold_started, phase_changed, lag))
+        pos = np.ascontiguousarray(positions, dtype=float)
+        if pos.shape != (self.n, 3):
+            raise ValueError(f"positions must have shape ({self.n}, 3), got {pos.shape}")
+        self._lib.wt_ref_step(self._pp, self._sp, self.n, float(dt), self._wc.addr(pos))
         return self._sample
-
-    # ------------------------------------------------------------------------------------------
-    def _write(self, idx: np.ndarray, s: BatchedSample) -> None:
-        if len(idx) == self.n:
-            self._sample = s
-            self.ideal = s.ideal_position
-            return
-        t = self._sample
-        for name in ("point", "normal", "velocity", "ideal_position", "phase", "progress", "done",
-                     "waiting_for_phase_change", "hold_started", "phase_changed", "s", "speed_factor", "lag", "time"):
-            getattr(t, name)[idx] = getattr(s, name)
-        self.ideal = t.ideal_position
-
-    def _compute(self, idx: np.ndarray, sigma: np.ndarray, hold_started: np.ndarray, phase_changed: np.ndarray,
-                 lag: np.ndarray) -> BatchedSample:
-        """Locate, interpolate, velocity and progress for drones ``idx`` (``sigma``, the flags and
-        ``lag`` are rows for those drones)."""
-        k_n = len(idx)
-        point, normal = np.empty((k_n, 3)), np.empty((k_n, 3))
-        arc, factor = np.empty(k_n), np.zeros(k_n)
-        velocity, ideal = np.zeros((k_n, 3)), np.empty((k_n, 3))
-        phase = np.empty(k_n, dtype=np.int64)
-        run_of = self.run[idx]
-        tau = self.tau[idx]
-        holding, done = self.holding[idx], self.done[idx]
-        d = self._standoff
-        one_run = k_n == 1 or run_of.min() == run_of.max()      # the common case: no grouping needed
-        for r_i in ([int(run_of[0])] if one_run else np.unique(run_of).tolist()):
-            sel = np.arange(k_n) if one_run else np.flatnonzero(run_of == r_i)
-            run = self._runs[r_i]
-            t = tau[sel]
-            n_tau = len(run.tau)
-            if n_tau == 1:
-                k = np.zeros(len(sel), dtype=np.int64)
-                g = np.repeat(run.geom[0:1], len(sel), axis=0)
-                frac = np.zeros(len(sel))
-            else:
-                k = np.searchsorted(run.tau, t, side="right") - 1
-                k = np.minimum(np.maximum(k, 0), n_tau - 2)
-                dk = run.dtau[k]
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    frac = np.where(dk <= 0, 0.0, np.minimum(1.0, np.maximum(0.0, (t - run.tau[k]) / dk)))
-                g0 = run.geom[k]
-                g = g0 + frac[:, None] * (run.geom[k + 1] - g0)
-            nv = g[:, 3:6]
-            nn = np.sqrt(nv[:, 0] * nv[:, 0] + nv[:, 1] * nv[:, 1] + nv[:, 2] * nv[:, 2])
-            good = nn > 1e-9
-            nrm = np.where(good[:, None], nv / np.where(good, nn, 1.0)[:, None], run.normals[k])
-            hx, hy = g[:, 6].copy(), g[:, 7].copy()
-            hn = np.array([math.hypot(a, b) for a, b in zip(hx.tolist(), hy.tolist())])
-            okh = hn > 1e-9
-            safe = np.where(okh, hn, 1.0)
-            hx = np.where(okh, hx / safe, run.hdir[k, 0])
-            hy = np.where(okh, hy / safe, run.hdir[k, 1])
-            point[sel] = g[:, 0:3]
-            normal[sel] = nrm
-            ideal[sel, 0] = g[:, 0] + d * hx
-            ideal[sel, 1] = g[:, 1] + d * hy
-            ideal[sel, 2] = g[:, 2]
-            phase[sel] = run.phase
-            arc[sel] = g[:, 9]
-            moving = ~(holding[sel] | done[sel]) & (n_tau > 1)
-            sg = sigma[sel]
-            factor[sel] = np.where(moving, sg, 0.0)
-            mv = moving & (sg > 0.0)
-            if mv.any():
-                velocity[sel[mv]] = (sg[mv] * self._speed)[:, None] * run.dp_dtau[k[mv]]
-        done_len = self._offsets[run_of] + tau
-        if self.total_length > 0:
-            progress = np.minimum(1.0, done_len / self.total_length)
-        else:
-            progress = np.where(done, 1.0, 0.0)
-        return BatchedSample(point=point, normal=normal, velocity=velocity, ideal_position=ideal, phase=phase,
-                             progress=progress, done=done.copy(), waiting_for_phase_change=holding.copy(),
-                             hold_started=hold_started.copy(), phase_changed=phase_changed.copy(), s=arc,
-                             speed_factor=factor, lag=np.asarray(lag, dtype=float).copy(), time=self.time[idx].copy())

@@ -1,16 +1,17 @@
-"""Observation and reward of one control step, for a batch of drones (one row per drone).
+"""Observation, reward and termination of one control step, for a batch of drones (one row per drone).
 
-Both :class:`~wt_inspect_env.env.WindTurbineInspectionEnv` (a batch of one) and the vector
-environment call these, so the two agree by construction. The arithmetic is element-wise, with
-``math.exp``/``math.hypot`` per row (NumPy's versions need not match them to the last bit), so a
-drone's numbers do not depend on the batch it is computed in.
+The default task's terms (:class:`~wt_inspect_env.hooks.TaskHooks` calls these): thin wrappers over
+the compiled world core (:mod:`~wt_inspect_env.world_core`), which computes each drone's row with
+the same scalar arithmetic whatever the batch, so the single environment (a batch of one) and the
+vector environment agree by construction.
 """
 from __future__ import annotations
 
-import math
+import ctypes
 
 import numpy as np
 
+from . import world_core as wc
 from .env_config import RewardConfig
 
 REWARD_TERMS = ("coverage", "distance", "centering", "effort", "crash")
@@ -22,24 +23,13 @@ def observations(state: np.ndarray, rates: np.ndarray, point: np.ndarray, normal
     """The Dict observation (see :mod:`~wt_inspect_env.spaces`), batched: ``(N, k)`` float32 arrays.
 
     Rows flagged in ``safe`` (non-finite states) have NaN/inf replaced by 0 so that the last
-    observation of a diverged episode is still inside the observation space.
+    observation of a diverged episode is still inside the observation space. The quaternion is
+    normalised (level if it has no norm), ``normal`` clipped to [-1, 1], ``coverage`` to at most 1
+    and ``progress`` to [0, 1].
     """
-    if safe is not None and safe.any():
-        state = np.where(safe[:, None], np.nan_to_num(state, nan=0.0, posinf=0.0, neginf=0.0), state)
-        rates = np.where(safe[:, None], np.nan_to_num(rates), rates)
-    q = state[:, 6:10]
-    nq = np.sqrt(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1] + q[:, 2] * q[:, 2] + q[:, 3] * q[:, 3])
-    good = nq > 1e-9
-    q = np.where(good[:, None], q / np.where(good, nq, 1.0)[:, None], np.array([0.0, 0.0, 0.0, 1.0]))
-    f32 = np.float32
-    return {
-        "position": state[:, 0:3].astype(f32), "velocity_body": state[:, 3:6].astype(f32),
-        "quaternion": np.clip(q, -1.0, 1.0).astype(f32), "body_rates": rates.astype(f32),
-        "point": point.astype(f32), "normal": np.clip(normal, -1.0, 1.0).astype(f32),
-        "point_velocity": point_velocity.astype(f32),
-        "coverage": np.minimum(1.0, coverage).astype(f32)[:, None],
-        "progress": np.minimum(1.0, np.maximum(0.0, progress)).astype(f32)[:, None],
-    }
+    if safe is None:
+        safe = np.zeros(len(state), dtype=bool)
+    return wc.observations(state, rates, point, normal, point_velocity, coverage, progress, safe)
 
 
 def reward_terms(w: RewardConfig, dt: float, n_triangles: int, action: np.ndarray, hover: np.ndarray,
@@ -48,28 +38,25 @@ def reward_terms(w: RewardConfig, dt: float, n_triangles: int, action: np.ndarra
     """Reward and its terms per drone (see :class:`RewardConfig`); a non-finite state earns the
     crash penalty alone."""
     n = len(state)
-    finite = np.isfinite(state).all(axis=1)
-    st = np.where(finite[:, None], state, 0.0)
-    d0, d1, d2 = st[:, 0] - ideal[:, 0], st[:, 1] - ideal[:, 1], st[:, 2] - ideal[:, 2]
-    e = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-    a0, a1 = point[:, 0] - st[:, 0], point[:, 1] - st[:, 1]
-    axy = np.array([math.hypot(x, y) for x, y in zip(a0.tolist(), a1.tolist())])
-    qx, qy, qz, qw = st[:, 6], st[:, 7], st[:, 8], st[:, 9]
-    fwd0 = 1 - 2 * (qy * qy + qz * qz)
-    fwd1 = 2 * (qx * qy + qw * qz)
-    ok = axy > 1e-9
-    h = np.where(ok, (fwd0 * a0 + fwd1 * a1) / np.where(ok, axy, 1.0), 0.0)
-    r = e / w.distance_scale
-    gauss = np.array([math.exp(x) for x in (-0.5 * (r * r)).tolist()])
-    u = action - hover
-    effort = ((u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1]) + u[:, 2] * u[:, 2]) + u[:, 3] * u[:, 3]
-    zero = np.zeros(n)
-    terms = {
-        "coverage": np.where(finite, w.coverage * n_new / n_triangles, zero),
-        "distance": np.where(finite, w.distance * dt * gauss, zero),
-        "centering": np.where(finite, w.centering * dt * h, zero),
-        "effort": np.where(finite, -w.effort * dt * effort, zero),
-        "crash": np.where(crashed | ~finite, -w.crash, zero),
-    }
-    reward = terms["coverage"] + terms["distance"] + terms["centering"] + terms["effort"] + terms["crash"]
-    return reward, terms
+    weights = wc.RewardWeights(coverage=w.coverage, distance=w.distance, centering=w.centering, effort=w.effort,
+                               crash=w.crash, distance_scale=w.distance_scale, dt=dt, n_triangles=int(n_triangles))
+    reward, terms = np.empty(n), np.empty((n, len(REWARD_TERMS)))
+    args = (wc.c_array(action, float), wc.c_array(hover, float), wc.c_array(state, float), wc.c_array(ideal, float),
+            wc.c_array(point, float), wc.c_array(n_new, np.int64), wc.c_array(crashed, np.bool_))
+    wc.library().wt_rewards(ctypes.addressof(weights), n, *(wc.addr(a) for a in args), wc.addr(reward),
+                            wc.addr(terms))
+    return reward, {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)}
+
+
+def termination_codes(state: np.ndarray, collision: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                      ideal: np.ndarray, waiting: np.ndarray, pose_error_limit: float | None) -> np.ndarray:
+    """Termination code per drone: 0 going on, 1 non-finite state, 2 collision, 3 outside the
+    working volume ``[lo, hi]`` (per drone), 4 farther than ``pose_error_limit`` from the ideal
+    stand-off pose (not while ``waiting`` for the rotor turn; None: no limit)."""
+    n = len(state)
+    code = np.empty(n, dtype=np.int64)
+    args = (wc.c_array(state, float), wc.c_array(collision, np.bool_), wc.c_array(lo, float), wc.c_array(hi, float),
+            wc.c_array(ideal, float), wc.c_array(waiting, np.bool_))
+    limit = float("nan") if pose_error_limit is None else float(pose_error_limit)
+    wc.library().wt_terminations(n, *(wc.addr(a) for a in args), limit, wc.addr(code))
+    return code

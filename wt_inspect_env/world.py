@@ -11,9 +11,9 @@ environment a world of N. So drone ``i`` of a world of N and the only drone of a
 the same seed, options and actions, fly the same episode bit for bit (tested), with no second
 implementation to keep equal.
 
-The arithmetic that must not depend on the batch (per-drone sums, square roots, ``math.hypot``)
-is written element-wise (see :mod:`~wt_inspect_env.step_terms`, the batched reference and metrics),
-and one camera's culling does not depend on how many are culled together.
+The per-step arithmetic - reference, metrics, observation, reward, termination - is compiled
+(:mod:`~wt_inspect_env.world_core`), per drone and in a fixed order, and one camera's culling does not
+depend on how many are culled together: a drone's numbers do not depend on the batch it is in.
 """
 from __future__ import annotations
 

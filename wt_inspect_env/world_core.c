@@ -315,3 +315,33 @@ void wt_observations(int64_t n, const double *state, const double *rates, const 
         o[23] = (float)(pg > 1.0 ? 1.0 : (pg < 0.0 ? 0.0 : pg));
     }
 }
+
+/* ------------------------------------------------------------------------------ body frame */
+
+/* Model state [p, v_body, q] (n, 10) and body rates (n, 3) from the world-frame flight state,
+ * with the rotation Bullet's btMatrix3x3::setRotation builds from the quaternion (x, y, z, w):
+ * the same operations, so the same numbers as p.getMatrixFromQuaternion. */
+void wt_body_frame(int64_t n, const double *pos, const double *vel, const double *omega, const double *quat,
+                   double *state, double *rates) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double *q = quat + 4 * i, *v = vel + 3 * i, *w = omega + 3 * i, *p = pos + 3 * i;
+        double x = q[0], y = q[1], z = q[2], qw = q[3];
+        double s = 2.0 / (x * x + y * y + z * z + qw * qw);
+        double xs = x * s, ys = y * s, zs = z * s;
+        double wx = qw * xs, wy = qw * ys, wz = qw * zs;
+        double xx = x * xs, xy = x * ys, xz = x * zs;
+        double yy = y * ys, yz = y * zs, zz = z * zs;
+        double R[9] = {1.0 - (yy + zz), xy - wz, xz + wy,
+                       xy + wz, 1.0 - (xx + zz), yz - wx,
+                       xz - wy, yz + wx, 1.0 - (xx + yy)};
+        double *st = state + 10 * i, *r = rates + 3 * i;
+        st[0] = p[0]; st[1] = p[1]; st[2] = p[2];
+        st[3] = R[0] * v[0] + R[3] * v[1] + R[6] * v[2];
+        st[4] = R[1] * v[0] + R[4] * v[1] + R[7] * v[2];
+        st[5] = R[2] * v[0] + R[5] * v[1] + R[8] * v[2];
+        st[6] = q[0]; st[7] = q[1]; st[8] = q[2]; st[9] = q[3];
+        r[0] = R[0] * w[0] + R[3] * w[1] + R[6] * w[2];
+        r[1] = R[1] * w[0] + R[4] * w[1] + R[7] * w[2];
+        r[2] = R[2] * w[0] + R[5] * w[1] + R[8] * w[2];
+    }
+}

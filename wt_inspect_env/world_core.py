@@ -57,8 +57,13 @@ class RewardWeights(ctypes.Structure):
                                         "dt")] + [("n_triangles", _I)]
 
 
+_LOADED: list[ctypes.CDLL] = []     # the process's loaded library (loading is idempotent)
+
+
 def library() -> ctypes.CDLL:
     """The compiled world core (RuntimeError naming the cause when it cannot be built)."""
+    if _LOADED:
+        return _LOADED[0]
     with _LOCK:
         src = resources.files(__package__).joinpath("world_core.c").read_text()
         lib = load_c_source(src, "wt_world_core", "world core")
@@ -72,18 +77,29 @@ def library() -> ctypes.CDLL:
         lib.wt_rewards.argtypes = [_P, _I, _P, _P, _P, _P, _P, _P, _P, _P, _P]
         lib.wt_terminations.argtypes = [_I, _P, _P, _P, _P, _P, _P, _D, _P]
         lib.wt_observations.argtypes = [_I, _P, _P, _P, _P, _P, _P, _P, _P, _P]
+        lib.wt_body_frame.argtypes = [_I, _P, _P, _P, _P, _P, _P]
         for f in ("wt_ref_sample", "wt_ref_step", "wt_metrics_add", "wt_rewards", "wt_terminations",
-                  "wt_observations"):
+                  "wt_observations", "wt_body_frame"):
             getattr(lib, f).restype = None
         lib._wt_ready = True
+        _LOADED.append(lib)
         return lib
 
 
+_CHAR = ctypes.c_char
+
+
 def addr(a: np.ndarray) -> int:
-    """The data address of a C-contiguous array (checked: C reads it with the row-major layout)."""
+    """The data address of a C-contiguous array (checked: C reads it with the row-major layout).
+    Through the buffer protocol, a few times cheaper than ``a.ctypes.data`` (which the per-step
+    calls would otherwise pay dozens of times); ``ctypes.data`` for what the buffer cannot give
+    (read-only or empty arrays)."""
     if not a.flags.c_contiguous:
         raise ValueError("world core arrays must be C-contiguous")
-    return a.ctypes.data
+    try:
+        return ctypes.addressof(_CHAR.from_buffer(a))
+    except (TypeError, ValueError):
+        return a.ctypes.data
 
 
 def c_array(a, dtype) -> np.ndarray:

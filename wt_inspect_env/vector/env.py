@@ -3,9 +3,12 @@
 ``gym.make_vec("WindTurbineInspection-v0", num_envs=N, vectorization_mode="vector_entry_point",
 **options)`` builds :class:`WindTurbineInspectionVectorEnv` for any registered task. Drone ``i``
 is the single :class:`~wt_inspect_env.env.WindTurbineInspectionEnv` made with the same options:
-its own seed (``reset(seed=s)`` seeds drone ``i`` with ``s + i``), wind field, reference, coverage,
-metrics and episode clock, and under the same actions the same observations, rewards, terminations,
-coverage and metrics, bit for bit (tested for N = 1, 4, 16 across autoresets and the rotor turn).
+both are adapters over one :class:`~wt_inspect_env.world.InspectionWorld` (the single env is its
+N = 1 case), so drone ``i`` has its own seed (``reset(seed=s)`` seeds drone ``i`` with ``s + i``),
+wind field, reference, coverage, metrics and episode clock, and under the same actions the same
+observations, rewards, terminations, coverage and metrics, bit for bit (tested for N = 1, 4, 16
+across autoresets and the rotor turn). ``hooks=`` (a :class:`~wt_inspect_env.hooks.TaskHooks`)
+changes the task for both.
 
 What is shared: the planned mission (one turbine, one task), the PyBullet client
 (:class:`~wt_inspect_env.batched_sim.BatchedQuadrotorSim`) and the camera-ray batch. Per-drone wind
@@ -13,8 +16,9 @@ is supported (``winds=[spec_0, ..., spec_N-1]``); per-drone turbines or tasks ar
 is planned per vector env - make one vector env per turbine) and are refused with a clear error.
 Domain randomisation (``randomization=...``) is drawn per drone from drone ``i``'s stream exactly as
 the single env draws it (its plant, noise and latency; the draw of an ended episode is in
-``info["final_info"]["randomization"]``, the running ones in :attr:`randomization`); image
-observations and ``reset(options=...)`` are single-env only and refused.
+``info["final_info"]["randomization"]``, the running ones in :attr:`randomization`).
+``reset(options=...)`` takes the single env's options for that episode of every drone; image
+observations are single-env only and refused (PyBullet renders one scene for all drones).
 
 Autoreset: ``AutoresetMode.SAME_STEP`` (in ``metadata["autoreset_mode"]``) - a drone whose
 episode ends is reset inside the same ``step``; the returned observation is the first of its new
@@ -72,7 +76,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.config = cfg = EnvConfig.from_kwargs(**options)
         if cfg.obs_mode != "state":
             raise ValueError(f"obs_mode is not supported by the vector env (single WindTurbineInspectionEnv only: "
-                             f"it renders no images); got obs_mode={cfg.obs_mode!r}")
+                             f"PyBullet renders one scene, in which each drone would see the others and the other "
+                             f"phases' turbines); got obs_mode={cfg.obs_mode!r}")
         if winds is not None:
             if isinstance(winds, (str, bytes)) or not isinstance(winds, Sequence) or len(winds) != n:
                 got = len(winds) if isinstance(winds, Sequence) and not isinstance(winds, (str, bytes)) else winds
