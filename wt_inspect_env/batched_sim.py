@@ -37,7 +37,7 @@ from .sim import (
     new_client,
     place_body,
 )
-from .wind import WindField, wind_velocities
+from .wind import WindBatch, WindField
 
 GROUND_GROUP = 1
 _GEOMETRY_GROUP0 = 16        # geometry g is in group 16 << g (phase 1, phase 2, ...)
@@ -88,7 +88,7 @@ class BatchedQuadrotorSim:
         if len(winds) != n:
             raise ValueError(f"winds must hold one field per drone ({n}), got {len(winds)}")
         self.winds = winds
-        self._varying = [i for i, w in enumerate(winds) if w is not None and not w.is_constant]
+        self._set_varying()
         self.dt = 1.0 / config.ctrl_hz
         self.physics_dt = 1.0 / config.physics_hz
         self._client = -1
@@ -252,7 +252,13 @@ class BatchedQuadrotorSim:
     def set_wind(self, i: int, wind: WindField | None) -> None:
         """Give drone ``i`` another wind field (used from its next reset on)."""
         self.winds[i] = wind
+        self._set_varying()
+
+    def _set_varying(self) -> None:
+        """The drones whose wind changes in time, and their fields batched for the step."""
         self._varying = [j for j, w in enumerate(self.winds) if w is not None and not w.is_constant]
+        self._varying_idx = np.array(self._varying, dtype=np.int64)
+        self._wind_batch = WindBatch([self.winds[j] for j in self._varying])
 
     def set_geometry(self, i: int, g: int) -> None:
         """Let drone ``i`` collide with (and see) geometry ``g`` only."""
@@ -344,9 +350,8 @@ class BatchedQuadrotorSim:
     def step(self, commands: np.ndarray) -> None:
         """Hold ``commands`` (n, 4) = [p, q, r, T] per drone (finite, T >= 0) for one control period."""
         if self._varying:
-            self.last_wind[self._varying] = wind_velocities([self.winds[i] for i in self._varying],
-                                                            self.steps[self._varying] * self.dt,
-                                                            self.pos[self._varying])
+            v = self._varying_idx
+            self.last_wind[v] = self._wind_batch(self.steps[v] * self.dt, self.pos[v])
         integ = self._integrator
         integ.commands[:] = commands
         self.in_collision[:] = False

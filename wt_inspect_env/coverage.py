@@ -30,6 +30,7 @@ seen in phase 1 stays seen in phase 2 - coverage lives in the blade-fixed frame.
 """
 from __future__ import annotations
 
+import ctypes
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -212,31 +213,7 @@ class TriangleVisibility:
         # n.c and |c|^2 are per-mesh constants of the cull.
         self._n_dot_c = np.einsum("ij,ij->i", self.normals, self.centroids)
         self._c_sq = np.einsum("ij,ij->i", self.centroids, self.centroids)
-
-    def candidates(self, origin: np.ndarray) -> np.ndarray:
-        """Indices passing the cheap tests (facing, incidence, centroid range; with the optical-axis
-        incidence rule the incidence needs the camera's attitude and is left to :meth:`in_view_batch`)."""
-        o = np.asarray(origin, dtype=float).reshape(1, 3)
-        return np.flatnonzero(self._cull(o)[0])
-
-    def _cull(self, origins: np.ndarray) -> np.ndarray:
-        """``bool (K, M)``: the cheap tests for K optical centres at once.
-
-        Written as explicit products and sums (no matrix product, whose BLAS kernel may reorder or
-        fuse them), so a camera's result does not depend on how many are culled together - the
-        vector environment culls all its drones in one call and must agree bit for bit.
-        """
-        cam = self.camera
-        ox, oy, oz = origins[:, 0:1], origins[:, 1:2], origins[:, 2:3]
-        nrm, c = self.normals, self.centroids
-        n_dot_v = (nrm[:, 0] * ox + nrm[:, 1] * oy + nrm[:, 2] * oz) - self._n_dot_c      # n . (o - c)
-        c_dot_o = c[:, 0] * ox + c[:, 1] * oy + c[:, 2] * oz
-        dist_sq = (self._c_sq - 2.0 * c_dot_o) + (ox * ox + oy * oy + oz * oz)         # |o - c|^2
-        in_range = (n_dot_v > 0.0) & (dist_sq <= cam.max_range * cam.max_range)
-        if cam.incidence_from_axis:
-            return in_range
-        cos2 = cam.cos_max_incidence * cam.cos_max_incidence
-        return in_range & (n_dot_v * n_dot_v > cos2 * dist_sq)
+        self._vis = None          # the compiled test's view of these arrays (built on first use)
 
     def visible_indices(self, origin, R) -> np.ndarray:
         """Sorted indices of the triangles seen from a camera at ``origin`` with ``R_world_from_cam``."""
@@ -252,31 +229,29 @@ class TriangleVisibility:
 
         In camera coordinates with x, y scaled by the half-FOV tangents, a point in front of the
         camera projects inside the image (0 <= u <= W, 0 <= v <= H, principal point at the centre)
-        exactly when max(|x'|, |y'|) <= z; no division needed. All products are explicit (see
-        :meth:`_cull`), so one camera's answer is the same alone or in a batch.
+        exactly when max(|x'|, |y'|) <= z; no division needed. Compiled (``wt_in_view`` in
+        ``world_core.c``): per camera and triangle, the cheap tests (facing, centroid range,
+        incidence) first, with explicit products, so one camera's answer is the same alone or in a batch.
         """
-        cam = self.camera
-        k_cams, tri = np.nonzero(self._cull(origins))        # pairs, grouped by camera, sorted
-        if cam.incidence_from_axis and len(tri):
-            # the authors' rule: the normal within max_incidence of the reversed optical axis -f
-            f, nrm = Rs[k_cams, :, 2], self.normals[tri]
-            cos_inc = -(nrm[:, 0] * f[:, 0] + nrm[:, 1] * f[:, 1] + nrm[:, 2] * f[:, 2])
-            facing = cos_inc > cam.cos_max_incidence
-            k_cams, tri = k_cams[facing], tri[facing]
-        if len(tri) == 0:
-            return [tri[:0] for _ in range(len(origins))]
-        rel = self.vertices[tri] - origins[k_cams][:, None, :]              # (P, 3, 3) vertex - o
-        S = (Rs * self._fov_scale)[k_cams]                                   # (P, 3, 3)
-        r0, r1, r2 = rel[..., 0], rel[..., 1], rel[..., 2]                   # (P, 3) per vertex
-        pc = [r0 * S[:, None, 0, j] + r1 * S[:, None, 1, j] + r2 * S[:, None, 2, j] for j in range(3)]
-        z = pc[2]
-        inside = (np.maximum(np.abs(pc[0]), np.abs(pc[1])) <= z) & (z > 0.0)
-        if cam.range_from_vertices:
-            inside &= (r0 * r0 + r1 * r1 + r2 * r2) <= cam.max_range * cam.max_range
-        keep = inside.all(axis=1)
-        k_cams, tri = k_cams[keep], tri[keep]
-        bounds = np.searchsorted(k_cams, np.arange(len(origins) + 1))
-        return [tri[bounds[j]:bounds[j + 1]] for j in range(len(origins))]
+        from . import world_core as wc
+
+        o = np.ascontiguousarray(origins, dtype=float).reshape(-1, 3)
+        R = np.ascontiguousarray(Rs, dtype=float).reshape(-1, 3, 3)
+        k = len(o)
+        if self._vis is None:
+            cam, v = self.camera, wc.Visibility()
+            self._c_arrays = [np.ascontiguousarray(a, dtype=float) for a in
+                              (self.vertices, self.normals, self.centroids, self._n_dot_c, self._c_sq)]
+            v.m = len(self.vertices)
+            v.vertices, v.normals, v.centroids, v.n_dot_c, v.c_sq = (wc.addr(a) for a in self._c_arrays)
+            v.fov_scale[:] = tuple(float(x) for x in self._fov_scale)
+            v.max_range, v.cos_max_incidence = float(cam.max_range), float(cam.cos_max_incidence)
+            v.incidence_from_axis, v.range_from_vertices = int(cam.incidence_from_axis), int(cam.range_from_vertices)
+            self._vis, self._vis_ptr = v, ctypes.addressof(v)
+        start = np.empty(k + 1, dtype=np.int64)
+        out = np.empty(max(1, k * len(self.vertices)), dtype=np.int64)
+        wc.library().wt_in_view(self._vis_ptr, k, wc.addr(o), wc.addr(R), wc.addr(start), wc.addr(out))
+        return [out[start[j]:start[j + 1]] for j in range(k)]
 
     def occlusion_targets(self, idx: np.ndarray) -> np.ndarray:
         """Ray targets of triangles ``idx``: ``(k, 3)`` (centroid samples) or ``(k, 4, 3)``."""

@@ -476,27 +476,45 @@ _WIND_OPTIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+class WindBatch:
+    """K wind fields evaluated together, field ``j`` at its own time and position - what a batch of
+    simulated drones needs once per control step. Built once per set of fields: the paper's gusts
+    (the common case) are evaluated in one compiled call (the operations and ``sin`` of
+    :meth:`GustWind.speed`), every other field on its own; the built-in fields skip the input
+    validation of ``__call__`` (the simulator's positions are finite float arrays and their outputs
+    are), user callables keep it. Each value is exactly ``fields[j](times[j], positions[j:j+1])[0]``.
+    """
+
+    def __init__(self, fields: "list[WindField]") -> None:
+        self.fields = list(fields)
+        self._gusts = np.array([j for j, f in enumerate(self.fields) if type(f) is GustWind], dtype=np.int64)
+        self._others = [j for j, f in enumerate(self.fields) if type(f) is not GustWind]
+        g = [self.fields[j] for j in self._gusts]
+        params = np.array([(f.mean_speed, f.amplitude, f.period, f.phase) for f in g], dtype=float)
+        self._cols = params.reshape(-1, 4).T.copy()     # one contiguous row per parameter
+        self._dirs = np.array([f.direction for f in g], dtype=float).reshape(-1, 3)
+        self._speeds = np.empty(len(g))
+
+    def __call__(self, times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        out = np.empty((len(self.fields), 3))
+        k = len(self._gusts)
+        if k:
+            from . import world_core as wc
+            t = np.ascontiguousarray(np.asarray(times, dtype=float)[self._gusts])
+            wc.library().wt_gust_speeds(k, *(wc.addr(c) for c in self._cols), wc.addr(t), wc.addr(self._speeds))
+            out[self._gusts] = self._speeds[:, None] * self._dirs
+        for j in self._others:
+            f = self.fields[j]
+            t, pos = float(times[j]), positions[j:j + 1]
+            trusted = type(f) in _BUILTIN_FIELDS and bool(np.isfinite(pos).all())
+            out[j] = (f._velocity(t, pos) if trusted else f(t, pos))[0]
+        return out
+
+
 def wind_velocities(fields: "list[WindField]", times: np.ndarray, positions: np.ndarray) -> np.ndarray:
     """(K, 3) velocities of K fields, field ``j`` at its own time ``times[j]`` and position
-    ``positions[j]`` - what a batch of simulated drones needs once per control step.
-
-    Each value is exactly ``fields[j](times[j], positions[j:j+1])[0]``: the paper's gusts (the
-    common case) are evaluated together, every other field on its own; the built-in fields skip
-    the input validation of ``__call__`` (the simulator's positions are finite float arrays and
-    their outputs are), user callables keep it.
-    """
-    out = np.empty((len(fields), 3))
-    gusts = [j for j, f in enumerate(fields) if type(f) is GustWind]
-    if gusts:
-        speeds = np.array([fields[j].speed(float(times[j])) for j in gusts])
-        out[gusts] = speeds[:, None] * np.array([fields[j].direction for j in gusts])
-    for j, f in enumerate(fields):
-        if type(f) is GustWind:
-            continue
-        t, pos = float(times[j]), positions[j:j + 1]
-        trusted = type(f) in _BUILTIN_FIELDS and bool(np.isfinite(pos).all())
-        out[j] = (f._velocity(t, pos) if trusted else f(t, pos))[0]
-    return out
+    ``positions[j]`` (a one-off :class:`WindBatch`)."""
+    return WindBatch(fields)(times, positions)
 
 
 def make_wind(spec: "WindField | Callable | Mapping[str, Any] | str | None") -> WindField:

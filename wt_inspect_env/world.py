@@ -291,14 +291,16 @@ class InspectionWorld:
         state = self.sim.state[idx]
         origins, Rs = self.camera.poses(state[:, 0:3], state[:, 6:10])
         seen = self.visible(self.sim.geometry[idx], origins, Rs)
+        lengths = np.array([len(tri) for tri in seen], dtype=np.int64)
+        self.last_visible[idx] = lengths
         new = np.zeros(len(idx), dtype=np.int64)
-        for j, (i, tri) in enumerate(zip(idx.tolist(), seen)):
-            self.last_visible[i] = len(tri)
-            if len(tri):
-                row = self.counts[i]
-                row[tri] += 1
-                new[j] = int(np.count_nonzero(row[tri] == 1))
-                self.n_seen[i] += new[j]
+        if lengths.any():
+            # every (drone, triangle) pair once per frame: counted with one fancy-indexed update
+            j = np.repeat(np.arange(len(idx)), lengths)
+            rows, tri = idx[j], np.concatenate(seen)
+            self.counts[rows, tri] += 1
+            new = np.bincount(j[self.counts[rows, tri] == 1], minlength=len(idx)).astype(np.int64)
+            self.n_seen[idx] += new
         self.last_new[idx] = new
         return new
 

@@ -345,3 +345,69 @@ void wt_body_frame(int64_t n, const double *pos, const double *vel, const double
         r[2] = R[2] * w[0] + R[5] * w[1] + R[8] * w[2];
     }
 }
+
+/* ------------------------------------------------------------------------------ camera */
+
+typedef struct {
+    int64_t m;                   /* triangles */
+    const double *vertices;      /* (m, 3, 3) */
+    const double *normals;       /* (m, 3) unit */
+    const double *centroids;     /* (m, 3) */
+    const double *n_dot_c;       /* (m,) n . c */
+    const double *c_sq;          /* (m,) |c|^2 */
+    double fov_scale[3];         /* fx/cx, fy/cy, 1 */
+    double max_range, cos_max_incidence;
+    int64_t incidence_from_axis, range_from_vertices;
+} Visibility;
+
+/* Per camera j (origins (k, 3), R_world_from_cam (k, 3, 3)): the sorted indices of the triangles
+ * that pass every test but occlusion (the coverage rule of coverage.py), written to
+ * out[start[j] .. start[j + 1]) (start has k + 1 entries; out must hold k * m). */
+void wt_in_view(const Visibility *V, int64_t k, const double *origins, const double *Rs, int64_t *start,
+                int64_t *out) {
+    int64_t w = 0, m = V->m;
+    double r2max = V->max_range * V->max_range, cos2 = V->cos_max_incidence * V->cos_max_incidence;
+    for (int64_t j = 0; j < k; ++j) {
+        start[j] = w;
+        const double *o = origins + 3 * j, *R = Rs + 9 * j;
+        double ox = o[0], oy = o[1], oz = o[2], oo = ox * ox + oy * oy + oz * oz;
+        double S[9];
+        for (int a = 0; a < 3; ++a)
+            for (int b = 0; b < 3; ++b) S[3 * a + b] = R[3 * a + b] * V->fov_scale[b];
+        for (int64_t t = 0; t < m; ++t) {
+            const double *nr = V->normals + 3 * t, *c = V->centroids + 3 * t;
+            double n_dot_v = (nr[0] * ox + nr[1] * oy + nr[2] * oz) - V->n_dot_c[t];
+            double c_dot_o = c[0] * ox + c[1] * oy + c[2] * oz;
+            double dist_sq = (V->c_sq[t] - 2.0 * c_dot_o) + oo;
+            if (!(n_dot_v > 0.0 && dist_sq <= r2max)) continue;
+            if (V->incidence_from_axis) {
+                double cos_inc = -(nr[0] * R[2] + nr[1] * R[5] + nr[2] * R[8]);
+                if (!(cos_inc > V->cos_max_incidence)) continue;
+            } else if (!(n_dot_v * n_dot_v > cos2 * dist_sq)) {
+                continue;
+            }
+            const double *vx = V->vertices + 9 * t;
+            int keep = 1;
+            for (int q = 0; q < 3 && keep; ++q) {
+                double r0 = vx[3 * q] - ox, r1 = vx[3 * q + 1] - oy, r2 = vx[3 * q + 2] - oz;
+                double p0 = r0 * S[0] + r1 * S[3] + r2 * S[6];
+                double p1 = r0 * S[1] + r1 * S[4] + r2 * S[7];
+                double p2 = r0 * S[2] + r1 * S[5] + r2 * S[8];
+                double a0 = fabs(p0), a1 = fabs(p1);
+                double big = a0 > a1 ? a0 : a1;
+                int inside = big <= p2 && p2 > 0.0;
+                if (V->range_from_vertices) inside = inside && (r0 * r0 + r1 * r1 + r2 * r2) <= r2max;
+                keep = inside;
+            }
+            if (keep) out[w++] = t;
+        }
+    }
+    start[k] = w;
+}
+
+/* Wind speeds of k gust fields at their times: mean + amplitude sin(2 pi t / period + phase). */
+void wt_gust_speeds(int64_t k, const double *mean, const double *amplitude, const double *period,
+                    const double *phase, const double *t, double *out) {
+    for (int64_t j = 0; j < k; ++j)
+        out[j] = mean[j] + amplitude[j] * sin(2 * 3.141592653589793 * t[j] / period[j] + phase[j]);
+}

@@ -52,6 +52,12 @@ class Metrics(ctypes.Structure):
         + [("safety_margin", _D)]
 
 
+class Visibility(ctypes.Structure):
+    _fields_ = [("m", _I), ("vertices", _P), ("normals", _P), ("centroids", _P), ("n_dot_c", _P), ("c_sq", _P),
+                ("fov_scale", _D * 3), ("max_range", _D), ("cos_max_incidence", _D), ("incidence_from_axis", _I),
+                ("range_from_vertices", _I)]
+
+
 class RewardWeights(ctypes.Structure):
     _fields_ = [(name, _D) for name in ("coverage", "distance", "centering", "effort", "crash", "distance_scale",
                                         "dt")] + [("n_triangles", _I)]
@@ -78,8 +84,10 @@ def library() -> ctypes.CDLL:
         lib.wt_terminations.argtypes = [_I, _P, _P, _P, _P, _P, _P, _D, _P]
         lib.wt_observations.argtypes = [_I, _P, _P, _P, _P, _P, _P, _P, _P, _P]
         lib.wt_body_frame.argtypes = [_I, _P, _P, _P, _P, _P, _P]
+        lib.wt_in_view.argtypes = [_P, _I, _P, _P, _P, _P]
+        lib.wt_gust_speeds.argtypes = [_I, _P, _P, _P, _P, _P, _P]
         for f in ("wt_ref_sample", "wt_ref_step", "wt_metrics_add", "wt_rewards", "wt_terminations",
-                  "wt_observations", "wt_body_frame"):
+                  "wt_observations", "wt_body_frame", "wt_in_view", "wt_gust_speeds"):
             getattr(lib, f).restype = None
         lib._wt_ready = True
         _LOADED.append(lib)

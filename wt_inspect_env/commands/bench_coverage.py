@@ -88,7 +88,7 @@ def run_bench(spacing: float = 0.02, repeats: int = 2, seed: int = 0) -> dict:
             vis = TriangleVisibility(cam, turbine.blade_vertices, turbine.blade_normals, occluder,
                                      occlusion_samples=mode)
             tracker = CoverageTracker(turbine.n_blade_triangles)
-            times, n_vis, n_cand = [], 0, 0
+            times, n_vis = [], 0
             for _ in range(repeats):
                 tracker.reset()
                 for k in range(n):
@@ -98,11 +98,9 @@ def run_bench(spacing: float = 0.02, repeats: int = 2, seed: int = 0) -> dict:
                     tracker.update_indices(idx)
                     times.append(time.perf_counter() - t0)
                     n_vis += len(idx)
-                    n_cand += len(vis.candidates(origin))
             out[f"frame_us_{mode}"] = 1e6 * statistics.median(times)
             out[f"frame_us_p90_{mode}"] = 1e6 * float(np.percentile(times, 90))
             out["visible_per_frame"] = n_vis / (n * repeats)
-            out["candidates_per_frame"] = n_cand / (n * repeats)
             out[f"coverage_{mode}"] = tracker.coverage
     finally:
         p.disconnect(physicsClientId=cid)
@@ -142,7 +140,7 @@ def main(argv: list[str], prog: str = "wt-inspect bench coverage") -> int:
         return 0
     print(f"coverage bench: {res['triangles']} blade triangles, {res['occluder_triangles']} occluder triangles, "
           f"{res['frames']} frames x {args.repeats}")
-    print(f"  candidates/frame {res['candidates_per_frame']:.1f}, visible/frame {res['visible_per_frame']:.1f}")
+    print(f"  visible/frame {res['visible_per_frame']:.1f}")
     for mode in OCCLUSION_SAMPLES:
         print(f"  frame (pose + visibility + tracker), occlusion={mode:<9} median {res[f'frame_us_{mode}']:7.1f} us"
               f"  p90 {res[f'frame_us_p90_{mode}']:7.1f} us  coverage {res[f'coverage_{mode}']:.4f}")
