@@ -68,3 +68,40 @@ def test_training_one_step_learns_the_changed_task_on_every_backend(backend):
         assert model.rollout_buffer.episode_starts[1:].sum() >= 2
     finally:
         venv.close()
+
+
+class SameTask(TaskHooks):
+    """The default task through the general (hook-calling) path: a subclass that overrides a hook."""
+
+    def rewards(self, world, actions, n_new, terminated):
+        return super().rewards(world, actions, n_new, terminated)
+
+
+def test_the_compiled_step_and_the_hook_path_fly_the_same_episode_bit_for_bit():
+    opts = dict(wind={"type": "dryden", "mean_speed": 5.0}, start_noise=0.8, randomization=True, time_limit_s=3.0)
+    fast = gym.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", **opts)
+    hooked = gym.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", hooks=SameTask(), **opts)
+    assert fast.unwrapped.world._fused_ok() and not hooked.unwrapped.world._fused_ok()
+    rng = np.random.default_rng(0)
+    try:
+        a_obs, _ = fast.reset(seed=2)
+        b_obs, _ = hooked.reset(seed=2)
+        ends = 0
+        for _ in range(450):              # past the 3 s limit: autoresets on both
+            act = np.clip(rng.normal(0.0, 0.3, (3, 4)), -1, 1)
+            a = fast.step(act)
+            b = hooked.step(act)
+            for k in a[0]:
+                np.testing.assert_array_equal(a[0][k], b[0][k])
+            np.testing.assert_array_equal(a[1], b[1])
+            assert np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])
+            for k in a[4]["reward_terms"]:
+                np.testing.assert_array_equal(a[4]["reward_terms"][k], b[4]["reward_terms"][k])
+            ends += int(np.sum(a[2] | a[3]))
+        assert ends >= 3
+        for i in range(3):
+            ma, mb = fast.unwrapped.metrics(i), hooked.unwrapped.metrics(i)
+            assert all(ma[k] == mb[k] or (ma[k] != ma[k] and mb[k] != mb[k]) for k in ma)
+    finally:
+        fast.close()
+        hooked.close()

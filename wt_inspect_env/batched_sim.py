@@ -320,10 +320,11 @@ class BatchedQuadrotorSim:
         """Body-to-world rotation entries (row-major) of every drone."""
         return bullet_rotation(self.quat)
 
-    def _body_frame(self) -> tuple[np.ndarray, np.ndarray]:
+    def body_frame(self) -> tuple[np.ndarray, np.ndarray]:
         """(state (n, 10), body rates (n, 3)), computed once per step or reset (the env layer reads
-        them several times a step; compiled, :func:`bullet_rotation`'s arithmetic) and handed out
-        as copies."""
+        them several times a step; compiled, :func:`bullet_rotation`'s arithmetic). The arrays are
+        the simulator's own, rewritten in place: read them, do not keep or change them (:attr:`state`
+        and :attr:`body_rates` hand out copies)."""
         if self._kin_key != self._version:
             from . import world_core as wc
             out, rates = self._kin_out, self._kin_rates
@@ -335,12 +336,12 @@ class BatchedQuadrotorSim:
     @property
     def state(self) -> np.ndarray:
         """(n, 10) [position, body velocity, quaternion], as :attr:`QuadrotorSim.state` row by row."""
-        return self._body_frame()[0].copy()
+        return self.body_frame()[0].copy()
 
     @property
     def body_rates(self) -> np.ndarray:
         """(n, 3) body angular velocities (p, q, r) [rad/s]."""
-        return self._body_frame()[1].copy()
+        return self.body_frame()[1].copy()
 
     @property
     def time(self) -> np.ndarray:

@@ -38,8 +38,7 @@ def reward_terms(w: RewardConfig, dt: float, n_triangles: int, action: np.ndarra
     """Reward and its terms per drone (see :class:`RewardConfig`); a non-finite state earns the
     crash penalty alone."""
     n = len(state)
-    weights = wc.RewardWeights(coverage=w.coverage, distance=w.distance, centering=w.centering, effort=w.effort,
-                               crash=w.crash, distance_scale=w.distance_scale, dt=dt, n_triangles=int(n_triangles))
+    weights = wc.reward_weights(w, dt, n_triangles)
     reward, terms = np.empty(n), np.empty((n, len(REWARD_TERMS)))
     args = (wc.c_array(action, float), wc.c_array(hover, float), wc.c_array(state, float), wc.c_array(ideal, float),
             wc.c_array(point, float), wc.c_array(n_new, np.int64), wc.c_array(crashed, np.bool_))

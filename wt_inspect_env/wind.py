@@ -494,14 +494,20 @@ class WindBatch:
         self._cols = params.reshape(-1, 4).T.copy()     # one contiguous row per parameter
         self._dirs = np.array([f.direction for f in g], dtype=float).reshape(-1, 3)
         self._speeds = np.empty(len(g))
+        self._t = np.empty(len(g))
+        self._call = None
+        if len(g):
+            from . import world_core as wc
+            self._call = (wc.library().wt_gust_speeds, [wc.addr(c) for c in self._cols], wc.addr(self._t),
+                          wc.addr(self._speeds))
 
     def __call__(self, times: np.ndarray, positions: np.ndarray) -> np.ndarray:
         out = np.empty((len(self.fields), 3))
         k = len(self._gusts)
         if k:
-            from . import world_core as wc
-            t = np.ascontiguousarray(np.asarray(times, dtype=float)[self._gusts])
-            wc.library().wt_gust_speeds(k, *(wc.addr(c) for c in self._cols), wc.addr(t), wc.addr(self._speeds))
+            fn, cols, t_ptr, out_ptr = self._call
+            self._t[:] = np.asarray(times, dtype=float)[self._gusts]
+            fn(k, *cols, t_ptr, out_ptr)
             out[self._gusts] = self._speeds[:, None] * self._dirs
         for j in self._others:
             f = self.fields[j]

@@ -17,6 +17,7 @@ depend on how many are culled together: a drone's numbers do not depend on the b
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import math
 from collections import deque
@@ -39,7 +40,9 @@ from .randomization import draw as draw_randomization
 from .reference import BatchedReference, InspectionReference, ReferenceConfig
 from .sim import SimConfig
 from .spaces import ActionScaling
+from .step_terms import REWARD_TERMS
 from .wind import WindField, make_wind
+from .world_core import observation_dict
 
 _MAX_RAYS = 16383          # PyBullet's rayTestBatch limit per call
 _MAX_EPISODE_WINDS = 8     # per drone: distinct reset(options={"wind": ...}) fields kept
@@ -142,6 +145,9 @@ class InspectionWorld:
         self._noise_rngs: list[np.random.Generator | None] = [None] * n
         self._commands: list[deque] = [deque() for _ in range(n)]
         self._episode_winds: list[dict[str, WindField]] = [{} for _ in range(n)]
+        self._noise_drones: list[int] = []        # drones whose episode draws observation noise
+        self._latency_drones: list[int] = []      # ... and command latency
+        self._fused_step: Any = None
 
     # ------------------------------------------------------------------ queries
     @property
@@ -211,6 +217,8 @@ class InspectionWorld:
             if self.sim.plants[i] is not self.params:
                 self.sim.set_plant(i)
             self._commands[i] = deque()
+        self._noise_drones = [j for j, d in enumerate(self.randomization) if d is not None and d.has_noise]
+        self._latency_drones = [j for j, d in enumerate(self.randomization) if d is not None and d.latency_steps]
         self.volume_lo[i], self.volume_hi[i] = grow_to_start(*self._vol_base, state[0:3], self.config.working_margin)
         self.sim.reset_drone(i, state)
         self._reset_state[i] = state
@@ -232,17 +240,81 @@ class InspectionWorld:
         randomised drone's command latency applied."""
         lo, hi = self._lo, self._hi
         commands = lo + (np.clip(actions, -1.0, 1.0) + 1.0) * 0.5 * (hi - lo)
-        for i, r in enumerate(self.randomization):
-            if r is not None and r.latency_steps:     # the command from latency_steps ago
-                self._commands[i].append(commands[i].copy())
-                commands[i] = self._commands[i].popleft()
+        for i in self._latency_drones:            # the command from latency_steps ago
+            self._commands[i].append(commands[i].copy())
+            commands[i] = self._commands[i].popleft()
         return commands
 
     def step(self, actions: np.ndarray) -> StepResult:
-        """One control step of every drone under validated normalised ``actions`` (N, 4)."""
-        n, cfg = self.n, self.config
+        """One control step of every drone under validated normalised ``actions`` (N, 4).
+
+        With the default hooks and the world's own simulator the whole step after the flight is
+        two compiled calls (:meth:`_step_fused`); hooks of a subclass (or a stand-in simulator such
+        as a vehicle link) take the general path, which calls them. Both give the same numbers."""
         self.sim.step(self.commands(actions))
         self.steps += 1
+        if self._fused_ok():
+            return self._step_fused(actions)
+        return self._step_general(actions)
+
+    def _fused_ok(self) -> bool:
+        h = type(self.hooks)
+        return (type(self.sim) is BatchedQuadrotorSim and h.observations is TaskHooks.observations
+                and h.rewards is TaskHooks.rewards and h.terminations is TaskHooks.terminations)
+
+    def _fused(self) -> Any:
+        """The compiled step's view of the world's arrays (built once; they are updated in place)."""
+        if self._fused_step is None:
+            from . import world_core as wc
+            n, cfg, sim = self.n, self.config, self.sim
+            state, rates = sim.body_frame()
+            buf = self._fused_buf = {
+                "finite": np.zeros(n, dtype=bool), "n_new": np.zeros(n, dtype=np.int64),
+                "actions": np.zeros((n, 4)), "hover": np.ascontiguousarray(self.hover_action, dtype=float),
+                "code": np.zeros(n, dtype=np.int64), "reward": np.zeros(n), "terms": np.zeros((n, 5)),
+                "terminated": np.zeros(n, dtype=bool), "truncated": np.zeros(n, dtype=bool),
+                "complete": np.zeros(n, dtype=bool), "obs": np.zeros((n, wc.OBS_WIDTH), dtype=np.float32)}
+            self._fused_weights = wc.reward_weights(cfg.reward, self.dt, self.n_triangles)
+            w = wc.WorldStep()
+            w.n, w.dt, w.end_hold, w.time_limit, w.d_ref = n, self.dt, cfg.end_hold_s, self.time_limit, cfg.standoff
+            w.pose_limit = math.nan if cfg.pose_error_limit is None else float(cfg.pose_error_limit)
+            w.path, w.ref = self.reference._pp, self.reference._sp
+            w.metrics, w.weights = self.metrics_acc._mp, ctypes.addressof(self._fused_weights)
+            arrays = {"state": state, "rates": rates, "steps": self.steps, "collision": sim.in_collision,
+                      "n_vis": self.last_visible, "lo": self.volume_lo, "hi": self.volume_hi,
+                      "done_time": self.done_time, "n_seen": self.n_seen, **buf}
+            for name, arr in arrays.items():
+                setattr(w, name, wc.addr(arr))
+            self._fused_step = (wc.library(), ctypes.addressof(w), w)
+        return self._fused_step
+
+    def _step_fused(self, actions: np.ndarray) -> StepResult:
+        lib, wp, _ = self._fused()
+        buf = self._fused_buf
+        self.sim.body_frame()                       # the state after the flight step (cached, in place)
+        lib.wt_world_advance(wp)
+        sample = self.reference.sample
+        if sample.hold_started.any():
+            for i in np.flatnonzero(sample.hold_started).tolist():
+                self.set_phase(i, int(self.phase_index[i]) + 1)
+        self.last_visible[:] = 0
+        new = buf["n_new"]
+        new[:] = 0
+        finite = buf["finite"]
+        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0))
+        if len(shoot):
+            new[shoot] = self._frames(shoot)
+        buf["actions"][:] = actions
+        lib.wt_world_finish(wp)
+        obs = observation_dict(buf["obs"].copy())
+        self._add_noise(obs, ~finite, None)
+        terms = buf["terms"].copy()
+        return StepResult(obs, buf["reward"].copy(), {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)},
+                          buf["code"].copy(), buf["terminated"].copy(), buf["truncated"].copy(),
+                          buf["complete"].copy(), finite.copy())
+
+    def _step_general(self, actions: np.ndarray) -> StepResult:
+        n, cfg = self.n, self.config
         state = self.sim.state
         finite = np.isfinite(state).all(axis=1)
         prev = self.reference.sample
@@ -274,15 +346,21 @@ class InspectionWorld:
         """All drones' observations (the hooks') with randomised observation noise drawn for the
         drones in ``noisy`` (default all) that are not ``safe`` - once per drone and step."""
         obs = self.hooks.observations(self, safe)
-        rows = range(self.n) if noisy is None else noisy
+        self._add_noise(obs, safe, noisy)
+        return obs
+
+    def _add_noise(self, obs: dict[str, np.ndarray], safe: np.ndarray, noisy: Any) -> None:
+        """Randomised observation noise for the drones in ``noisy`` (default all) that draw it and
+        are not ``safe``, in place."""
+        if not self._noise_drones:
+            return
+        rows = self._noise_drones if noisy is None else [i for i in noisy if i in self._noise_drones]
         for i in rows:
-            r = self.randomization[i]
-            if r is not None and r.has_noise and not safe[i]:
+            if not safe[i]:
                 row = {k: v[i] for k, v in obs.items()}
-                noisy_state(row, r, self._noise_rngs[i])
+                noisy_state(row, self.randomization[i], self._noise_rngs[i])
                 for k, v in row.items():
                     obs[k][i] = v
-        return obs
 
     # ------------------------------------------------------------------ camera
     def _frames(self, idx: np.ndarray) -> np.ndarray:

@@ -104,10 +104,9 @@ void wt_ref_sample(const RefPath *P, RefState *S, int64_t m, const int64_t *idx)
     for (int64_t j = 0; j < m; ++j) ref_sample(P, S, idx[j], 0.0, 0, 0, NAN);
 }
 
-/* One control step of every drone's reference given the drone positions (n, 3). */
-void wt_ref_step(const RefPath *P, RefState *S, int64_t n, double dt, const double *pos) {
-    for (int64_t i = 0; i < n; ++i) {
-        const double *q = S->ideal + 3 * i, *x = pos + 3 * i;
+static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, const double *x) {
+    {
+        const double *q = S->ideal + 3 * i;
         double d0 = x[0] - q[0], d1 = x[1] - q[1], d2 = x[2] - q[2];
         double lag = sqrt(d0 * d0 + d1 * d1 + d2 * d2);
         S->time[i] += dt;
@@ -144,6 +143,11 @@ void wt_ref_step(const RefPath *P, RefState *S, int64_t n, double dt, const doub
     }
 }
 
+/* One control step of every drone's reference given the drone positions (n, 3). */
+void wt_ref_step(const RefPath *P, RefState *S, int64_t n, double dt, const double *pos) {
+    for (int64_t i = 0; i < n; ++i) ref_step_one(P, S, i, dt, pos + 3 * i);
+}
+
 /* ------------------------------------------------------------------------------ metrics */
 
 #define RAD2DEG (180.0 / 3.141592653589793)
@@ -158,34 +162,26 @@ typedef struct {
     double safety_margin;
 } Metrics;
 
-/* Add k samples, sample j to drone idx[j] (sequentially: a drone may appear several times, in
- * time order). dref[j * dref_stride] is sample j's reference distance. */
-void wt_metrics_add(Metrics *M, int64_t k, const int64_t *idx, const double *t, const double *pos,
-                    const double *quat, const double *point, const double *normal, const uint8_t *col,
-                    const int64_t *n_new, const int64_t *n_vis, const uint8_t *insp, const double *dref,
-                    int64_t dref_stride) {
-    for (int64_t j = 0; j < k; ++j) {
-        int64_t i = idx[j];
+static void metrics_add_one(Metrics *M, int64_t i, double t, const double *x, const double *q, const double *p,
+                            const double *nv, int cl, int64_t n_new, int64_t n_vis, int insp, double dref) {
+    {
         int64_t *c = M->counts + 7 * i;
         double *sm = M->sums + 9 * i, *mn = M->mins + 2 * i, *mx = M->maxs + 4 * i, *pv = M->prev + 3 * i;
-        const double *x = pos + 3 * j;
         if (c[0] == 0) {
-            M->t_first[i] = t[j];
+            M->t_first[i] = t;
         } else {
             double dx = x[0] - pv[0], dy = x[1] - pv[1], dz = x[2] - pv[2];
             sm[8] += sqrt(dx * dx + dy * dy + dz * dz);
         }
-        M->t_last[i] = t[j];
+        M->t_last[i] = t;
         pv[0] = x[0]; pv[1] = x[1]; pv[2] = x[2];
-        int cl = col[j] != 0;
         c[0] += 1;
         c[3] += cl && !M->prev_col[i];
         c[4] += cl;
-        c[5] += n_new[j];
-        c[6] += n_vis[j];
+        c[5] += n_new;
+        c[6] += n_vis;
         M->prev_col[i] = (uint8_t)cl;
-        if (!insp[j]) continue;
-        const double *q = quat + 4 * j, *p = point + 3 * j, *nv = normal + 3 * j;
+        if (!insp) return;
         double qx = q[0], qy = q[1], qz = q[2], qw = q[3];
         double qq = qx * qx + qy * qy + qz * qz + qw * qw;
         double nn = sqrt(nv[0] * nv[0] + nv[1] * nv[1] + nv[2] * nv[2]);
@@ -205,7 +201,7 @@ void wt_metrics_add(Metrics *M, int64_t k, const int64_t *idx, const double *t, 
         else inc = 90.0;
         double o0 = ax - a_n * u0, o1 = ay - a_n * u1, o2 = az - a_n * u2;
         double o = sqrt(o0 * o0 + o1 * o1 + o2 * o2);
-        double err = d - dref[j * dref_stride], abs_err = fabs(err);
+        double err = d - dref, abs_err = fabs(err);
         c[1] += 1;
         c[2] += abs_err < M->safety_margin;
         sm[0] += h; sm[1] += hb; sm[2] += herr; sm[3] += d; sm[4] += err * err; sm[5] += inc; sm[6] += o;
@@ -214,6 +210,17 @@ void wt_metrics_add(Metrics *M, int64_t k, const int64_t *idx, const double *t, 
         mx[0] = np_max(mx[0], herr); mx[1] = np_max(mx[1], d); mx[2] = np_max(mx[2], abs_err);
         mx[3] = np_max(mx[3], inc);
     }
+}
+
+/* Add k samples, sample j to drone idx[j] (sequentially: a drone may appear several times, in
+ * time order). dref[j * dref_stride] is sample j's reference distance. */
+void wt_metrics_add(Metrics *M, int64_t k, const int64_t *idx, const double *t, const double *pos,
+                    const double *quat, const double *point, const double *normal, const uint8_t *col,
+                    const int64_t *n_new, const int64_t *n_vis, const uint8_t *insp, const double *dref,
+                    int64_t dref_stride) {
+    for (int64_t j = 0; j < k; ++j)
+        metrics_add_one(M, idx[j], t[j], pos + 3 * j, quat + 4 * j, point + 3 * j, normal + 3 * j, col[j] != 0,
+                        n_new[j], n_vis[j], insp[j] != 0, dref[j * dref_stride]);
 }
 
 /* ------------------------------------------------------------------------------ the task */
@@ -410,4 +417,60 @@ void wt_gust_speeds(int64_t k, const double *mean, const double *amplitude, cons
                     const double *phase, const double *t, double *out) {
     for (int64_t j = 0; j < k; ++j)
         out[j] = mean[j] + amplitude[j] * sin(2 * 3.141592653589793 * t[j] / period[j] + phase[j]);
+}
+
+/* ------------------------------------------------------------------------------ the world step */
+
+typedef struct {
+    int64_t n;
+    const RefPath *path; RefState *ref; Metrics *metrics; const RewardWeights *weights;
+    const double *state, *rates;        /* the body frame after the flight step, (n, 10), (n, 3) */
+    const int64_t *steps; double dt;    /* episode steps per drone; control period */
+    uint8_t *finite;                    /* out of wt_world_advance */
+    const uint8_t *collision;           /* touched the ground or the turbine during the step */
+    const int64_t *n_new, *n_vis;       /* this step's camera frame per drone (0 without one) */
+    const double *actions, *hover;      /* normalised actions (n, 4), hover action (4) */
+    const double *lo, *hi; double pose_limit;      /* working volume (n, 3) each; NaN: no pose limit */
+    double *done_time; double end_hold, time_limit;
+    const int64_t *n_seen; double d_ref;
+    int64_t *code; double *reward, *terms; uint8_t *terminated, *truncated, *complete; float *obs;
+} WorldStep;
+
+/* After the flight step: which drones are finite, and every drone's reference advanced (a
+ * non-finite drone as if at its ideal pose). */
+void wt_world_advance(WorldStep *W) {
+    for (int64_t i = 0; i < W->n; ++i) {
+        const double *s = W->state + 10 * i;
+        int fin = finite_row(s, 10);
+        W->finite[i] = (uint8_t)fin;
+        double x[3];
+        for (int j = 0; j < 3; ++j) x[j] = fin ? s[j] : W->ref->ideal[3 * i + j];
+        ref_step_one(W->path, W->ref, i, W->dt, x);
+    }
+}
+
+/* After the camera frames: metrics, termination, reward, completion and observation per drone. */
+void wt_world_finish(WorldStep *W) {
+    RefState *R = W->ref;
+    for (int64_t i = 0; i < W->n; ++i) {
+        const double *s = W->state + 10 * i;
+        double t = (double)W->steps[i] * W->dt;
+        int fin = W->finite[i];
+        if (fin)
+            metrics_add_one(W->metrics, i, t, s, s + 6, R->point + 3 * i, R->normal + 3 * i, W->collision[i] != 0,
+                            W->n_new[i], W->n_vis[i], !R->waiting[i], W->d_ref);
+        wt_terminations(1, s, W->collision + i, W->lo + 3 * i, W->hi + 3 * i, R->ideal + 3 * i, R->waiting + i,
+                        W->pose_limit, W->code + i);
+        W->terminated[i] = W->code[i] > 0;
+        wt_rewards(W->weights, 1, W->actions + 4 * i, W->hover, s, R->ideal + 3 * i, R->point + 3 * i, W->n_new + i,
+                   W->terminated + i, W->reward + i, W->terms + 5 * i);
+        if (R->s_done[i] && isnan(W->done_time[i])) W->done_time[i] = t;
+        int complete = !isnan(W->done_time[i]) && t >= W->done_time[i] + W->end_hold - 1e-9;
+        W->complete[i] = (uint8_t)complete;
+        W->truncated[i] = !W->terminated[i] && (complete || t >= W->time_limit - 1e-9);
+        double cov = (double)W->n_seen[i] / (double)W->weights->n_triangles;
+        uint8_t safe = !fin;
+        wt_observations(1, s, W->rates + 3 * i, R->point + 3 * i, R->normal + 3 * i, R->velocity + 3 * i, &cov,
+                        R->progress + i, &safe, W->obs + 24 * i);
+    }
 }

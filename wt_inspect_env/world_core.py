@@ -18,6 +18,7 @@ from __future__ import annotations
 import ctypes
 import threading
 from importlib import resources
+from typing import Any
 
 import numpy as np
 
@@ -63,6 +64,15 @@ class RewardWeights(ctypes.Structure):
                                         "dt")] + [("n_triangles", _I)]
 
 
+class WorldStep(ctypes.Structure):
+    _fields_ = [("n", _I), ("path", _P), ("ref", _P), ("metrics", _P), ("weights", _P), ("state", _P),
+                ("rates", _P), ("steps", _P), ("dt", _D), ("finite", _P), ("collision", _P), ("n_new", _P),
+                ("n_vis", _P), ("actions", _P), ("hover", _P), ("lo", _P), ("hi", _P), ("pose_limit", _D),
+                ("done_time", _P), ("end_hold", _D), ("time_limit", _D), ("n_seen", _P), ("d_ref", _D),
+                ("code", _P), ("reward", _P), ("terms", _P), ("terminated", _P), ("truncated", _P),
+                ("complete", _P), ("obs", _P)]
+
+
 _LOADED: list[ctypes.CDLL] = []     # the process's loaded library (loading is idempotent)
 
 
@@ -86,8 +96,11 @@ def library() -> ctypes.CDLL:
         lib.wt_body_frame.argtypes = [_I, _P, _P, _P, _P, _P, _P]
         lib.wt_in_view.argtypes = [_P, _I, _P, _P, _P, _P]
         lib.wt_gust_speeds.argtypes = [_I, _P, _P, _P, _P, _P, _P]
+        lib.wt_world_advance.argtypes = [_P]
+        lib.wt_world_finish.argtypes = [_P]
         for f in ("wt_ref_sample", "wt_ref_step", "wt_metrics_add", "wt_rewards", "wt_terminations",
-                  "wt_observations", "wt_body_frame", "wt_in_view", "wt_gust_speeds"):
+                  "wt_observations", "wt_body_frame", "wt_in_view", "wt_gust_speeds", "wt_world_advance",
+                  "wt_world_finish"):
             getattr(lib, f).restype = None
         lib._wt_ready = True
         _LOADED.append(lib)
@@ -115,6 +128,17 @@ def c_array(a, dtype) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=dtype)
 
 
+def reward_weights(w: Any, dt: float, n_triangles: int) -> RewardWeights:
+    """The C view of a :class:`~wt_inspect_env.env_config.RewardConfig`."""
+    return RewardWeights(coverage=w.coverage, distance=w.distance, centering=w.centering, effort=w.effort,
+                         crash=w.crash, distance_scale=w.distance_scale, dt=dt, n_triangles=int(n_triangles))
+
+
+def observation_dict(block: np.ndarray) -> dict[str, np.ndarray]:
+    """The Dict observation entries as views of an (N, 24) float32 block."""
+    return {name: block[:, a:b] for name, a, b in OBS_LAYOUT}
+
+
 def observations(state: np.ndarray, rates: np.ndarray, point: np.ndarray, normal: np.ndarray,
                  point_velocity: np.ndarray, coverage: np.ndarray, progress: np.ndarray,
                  safe: np.ndarray) -> dict[str, np.ndarray]:
@@ -125,4 +149,4 @@ def observations(state: np.ndarray, rates: np.ndarray, point: np.ndarray, normal
             c_array(normal, np.float64), c_array(point_velocity, np.float64), c_array(coverage, np.float64),
             c_array(progress, np.float64), c_array(safe, np.bool_)]
     library().wt_observations(n, *(addr(a) for a in args), addr(out))
-    return {name: out[:, a:b] for name, a, b in OBS_LAYOUT}
+    return observation_dict(out)

@@ -93,6 +93,38 @@ def measure_vector(task: str, n: int, steps: int, repeats: int, options: dict) -
     return _summary(rates, dt, n, per_block * n * repeats, resets, rss0, rss1, rss2)
 
 
+def measure_memory(task: str, n: int, total_steps: int, options: dict, samples: int = 10) -> dict:
+    """Resident set size over ``total_steps`` aggregate steps of the vector env with ``n`` drones
+    (autoresets included): ``samples`` readings, and the growth per million steps from a
+    least-squares line through the second half of them (after the allocator has settled)."""
+    from tqdm import tqdm
+
+    env = gym.make_vec(ENV_IDS[task], num_envs=n, vectorization_mode="vector_entry_point", **options)
+    hover = env.unwrapped.scaling.hover_action()
+    rng = np.random.default_rng(1)
+    env.reset(seed=1)
+    per_sample = max(1, total_steps // (n * samples))
+    acts = _actions(rng, hover, 64 * n).reshape(64, n, 4)
+    readings = [(0, rss_mb())]
+    done = 0
+    with tqdm(total=per_sample * samples * n, unit="step", unit_scale=True, desc=f"memory, N = {n}",
+              disable=not sys.stderr.isatty()) as bar:
+        for _ in range(samples):
+            for k in range(per_sample):
+                env.step(acts[k % 64])
+            done += per_sample * n
+            bar.update(per_sample * n)
+            readings.append((done, rss_mb()))
+    env.close()
+    half = readings[len(readings) // 2:]
+    x = np.array([r[0] for r in half], dtype=float) / 1e6
+    y = np.array([r[1] for r in half])
+    slope = float(np.polyfit(x, y, 1)[0]) if len(half) >= 2 and np.ptp(x) > 0 else float("nan")
+    return {"num_envs": n, "steps": done, "rss_mb": [r[1] for r in readings], "at_steps": [r[0] for r in readings],
+            "growth_mb_per_million_steps_second_half": slope,
+            "growth_mb_total": readings[-1][1] - readings[0][1]}
+
+
 def _summary(rates: list[float], dt: float, n: int, total: int, resets: int,
              rss0: float, rss1: float, rss2: float) -> dict:
     med = statistics.median(rates)
@@ -123,7 +155,7 @@ def crazyflow_rates(python: str, counts: list[int], steps: int, repeats: int) ->
 
 
 def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats: int = 3,
-              options: dict | None = None, crazyflow_python: str | None = None) -> dict:
+              options: dict | None = None, crazyflow_python: str | None = None, memory_steps: int = 0) -> dict:
     """Run the benchmark; returns ``{"1": {...}, "8": {...}, ...}`` plus a ``"reference"`` entry."""
     import wt_inspect_env  # noqa: F401 - registers the ids
 
@@ -149,6 +181,8 @@ def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats
             if key in out:
                 out[key]["crazyflow_steps_per_s"] = rate
                 out[key]["ratio_to_crazyflow"] = out[key]["steps_per_s"] / rate
+    if memory_steps:
+        out["memory"] = measure_memory(task, max(counts), memory_steps, options)
     return out
 
 
@@ -163,13 +197,18 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     ap.add_argument("--crazyflow-python", default=None, metavar="PATH",
                     help="the Python of a virtual environment with crazyflow: time it stepped like an env, "
                          "same N, side by side")
+    ap.add_argument("--memory-steps", type=int, default=0, metavar="M",
+                    help="also step the largest N for M aggregate steps and report the resident set's growth")
     ap.add_argument("--json", action="store_true", help="print one JSON object keyed by N")
     args = ap.parse_args(argv)
     try:
         counts = _parse_counts(args.num_envs)
         if args.steps < 1 or args.repeats < 1:
             raise ValueError(f"--steps and --repeats must be positive, got {args.steps}, {args.repeats}")
-        out = run_bench(counts, args.task, args.steps, args.repeats, args.env or {}, args.crazyflow_python)
+        if args.memory_steps < 0:
+            raise ValueError(f"--memory-steps must be >= 0, got {args.memory_steps}")
+        out = run_bench(counts, args.task, args.steps, args.repeats, args.env or {}, args.crazyflow_python,
+                        args.memory_steps)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -183,7 +222,7 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     print(f"{'N':>5} {'steps/s':>10} {'x real time':>11} {'x single':>9} {'x raw':>7} {'MB/drone':>9} {'RSS growth':>11}"
           + (f" {'crazyflow':>10} {'x cf':>6}" if peer else ""))
     for key, e in out.items():
-        if key == "reference":
+        if key in ("reference", "memory"):
             continue
         label = "1*" if key == "1" else key
         print(f"{label:>5} {e['steps_per_s']:>10,.0f} {e['realtime_factor']:>11.1f} {e['ratio_to_single']:>9.2f} "
@@ -193,4 +232,9 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     print("(* N = 1 is the single WindTurbineInspectionEnv"
           + ("; crazyflow: Sim(n_worlds=N), first-principles dynamics, body-rate control at 400 Hz, stepped every 10 ms"
              if peer else "") + ")")
+    if "memory" in out:
+        m = out["memory"]
+        print(f"memory, N = {m['num_envs']}, {m['steps']:,} aggregate steps: RSS {m['rss_mb'][0]:.0f} -> "
+              f"{m['rss_mb'][-1]:.0f} MB ({m['growth_mb_total']:+.1f} MB); second half "
+              f"{m['growth_mb_per_million_steps_second_half']:+.2f} MB per million steps")
     return 0
