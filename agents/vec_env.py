@@ -1,9 +1,8 @@
 """The agent interface over the native vector environment, as one stable-baselines3 ``VecEnv``.
 
 :class:`BatchedAgentInterface` is :class:`~agents.wrappers.FeatureEncoder` and
-:class:`~agents.wrappers.ResidualHoverAction` for N drones at once (NumPy over the drones; the
-scalar classes stay the deployed path, used by :class:`~agents.policy.SB3Policy`, and a test checks
-the two agree to float32 rounding). :class:`InspectionVecEnv` drives
+:class:`~agents.wrappers.ResidualHoverAction` for N drones at once (both are fronts over a batch
+of one of the same code, :mod:`agents.interface`). :class:`InspectionVecEnv` drives
 :class:`~wt_inspect_env.vector.WindTurbineInspectionVectorEnv` with it: one SB3 step is one agent
 decision per drone, held for ``action_repeat`` control steps with the policy action decoded at
 the current attitude every step, rewards summed, the training-only shaping added - what
@@ -17,142 +16,50 @@ other variants need the subprocess path (``backend="subprocess"``).
 """
 from __future__ import annotations
 
-import math
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 from gymnasium import spaces
 
-from wt_inspect_env.dynamics import quat_to_rotmat_np
 from wt_inspect_env.spaces import ActionScaling
 
-from .wrappers import AgentSpec, ShapingConfig, camera_heading
+from .interface import BatchedDecoder, BatchedFeatures
+from .wrappers import AgentSpec, ShapingConfig
 
 
 class BatchedAgentInterface:
-    """Features in, env actions out, for ``n`` drones (see the module docstring)."""
+    """Features in, env actions out, for ``n`` drones: :class:`~agents.interface.BatchedFeatures`
+    and :class:`~agents.interface.BatchedDecoder` of one agent spec."""
 
     def __init__(self, spec: AgentSpec, n: int, *, standoff: float, dt: float, scaling: ActionScaling) -> None:
         self.spec, self.n, self.standoff, self.dt, self.scaling = spec, n, standoff, dt, scaling
-        cfg = spec.features
-        self._decay = math.exp(-dt / cfg.integral_time_s)
-        self._gain = cfg.integral_time_s * (1.0 - self._decay)
-        self._ilimit = cfg.clip * cfg.integral_time_s * cfg.position_scale
-        self._hover_thrust = scaling.hover_thrust
-        self._lo, self._hi = scaling.lower, scaling.upper
-        self.integral = np.zeros((n, 3))
-        self.last_action = np.zeros((n, 4))
-        self.hdir = np.tile([1.0, 0.0, 0.0], (n, 1))
-        self.has_hdir = np.zeros(n, dtype=bool)
-        self.err = np.zeros((n, 3))
-        self._obs: dict[str, np.ndarray] = {}
-        self._R = np.tile(np.eye(3), (n, 1, 1))
+        self.encoder = BatchedFeatures(spec.features, n, standoff=standoff, dt=dt, max_rate=scaling.max_rate)
+        self.decoder = BatchedDecoder(spec.action, scaling)
+
+    @property
+    def err(self) -> np.ndarray:
+        return self.encoder.err
 
     def reset(self, idx: np.ndarray) -> None:
-        self.integral[idx] = 0.0
-        self.last_action[idx] = 0.0
-        self.hdir[idx] = [1.0, 0.0, 0.0]
-        self.has_hdir[idx] = False
+        self.encoder.reset(idx)
 
     def note_action(self, u: np.ndarray) -> None:
-        self.last_action = np.asarray(u, dtype=np.float64).copy()
+        self.encoder.note_action(u)
 
     def update(self, idx: np.ndarray, obs: Mapping[str, np.ndarray]) -> None:
         """Consume one observation for drones ``idx`` (``obs`` rows belong to them)."""
-        if len(idx) == 0:
-            return
-        o = {k: np.asarray(v, dtype=np.float64) for k, v in obs.items()}
-        nx, ny = o["normal"][:, 0], o["normal"][:, 1]
-        norm = np.hypot(nx, ny)
-        ok = norm > 1e-6
-        safe = np.where(ok, norm, 1.0)
-        new_h = np.stack([nx / safe, ny / safe, np.zeros(len(idx))], axis=1)
-        self.hdir[idx] = np.where(ok[:, None], new_h, self.hdir[idx])
-        self.has_hdir[idx] |= ok
-        ideal = o["point"] + self.standoff * self.hdir[idx]
-        err = ideal - o["position"]
-        integ = self.integral[idx] * self._decay + self._gain * err
-        n = np.linalg.norm(integ, axis=1)
-        over = n > self._ilimit
-        integ[over] *= (self._ilimit / n[over])[:, None]
-        self.integral[idx] = integ
-        self.err[idx] = err
-        for k, v in o.items():
-            if k not in self._obs:
-                self._obs[k] = np.zeros((self.n,) + v.shape[1:])
-            self._obs[k][idx] = v
-        self._R[idx] = quat_to_rotmat_np(o["quaternion"])
+        if len(idx):
+            self.encoder.update(idx, obs)
 
     def heading_cos(self, i: int) -> float:
-        """Cosine of drone ``i``'s camera heading error at its last update (the scalar formula)."""
-        return camera_heading(self._R[i], self._obs["position"][i], self._obs["point"][i])[1]
+        return self.encoder.heading_cos(i)
 
     def features(self) -> np.ndarray:
-        """(n, F) float32 features of every drone's last update (and last noted action)."""
-        cfg, o, R = self.spec.features, self._obs, self._R
-        Rt = np.transpose(R, (0, 2, 1))
-        x, point = o["position"], o["point"]
-
-        def body(v: np.ndarray) -> np.ndarray:
-            return np.einsum("nij,nj->ni", Rt, v)
-
-        parts: list[np.ndarray] = []
-        for g in cfg.groups:
-            if g == "ideal_body":
-                parts.append(body(self.err) / cfg.position_scale)
-            elif g == "point_body":
-                parts.append(body(point - x) / self.standoff)
-            elif g == "velocity_body":
-                parts.append((o["velocity_body"] - body(o["point_velocity"])) / cfg.velocity_scale)
-            elif g == "gravity_body":
-                parts.append(-R[:, 2, :])
-            elif g == "heading":
-                fx, fy = R[:, 0, 0], R[:, 1, 0]
-                ax, ay = point[:, 0] - x[:, 0], point[:, 1] - x[:, 1]
-                nf, na = np.hypot(fx, fy), np.hypot(ax, ay)
-                ok = (nf >= 1e-9) & (na >= 1e-9)
-                d = np.where(ok, nf * na, 1.0)
-                parts.append(np.stack([np.where(ok, (fx * ay - fy * ax) / d, 0.0),
-                                       np.where(ok, (fx * ax + fy * ay) / d, 1.0)], axis=1))
-            elif g == "body_rates":
-                parts.append(o["body_rates"] / self.scaling.max_rate)
-            elif g == "normal_body":
-                parts.append(body(o["normal"]))
-            elif g == "integral":
-                parts.append(body(self.integral) / (cfg.integral_time_s * cfg.position_scale))
-            elif g == "last_action":
-                parts.append(self.last_action)
-            elif g in ("progress", "coverage"):
-                parts.append(o[g].reshape(-1, 1))
-        return np.clip(np.concatenate(parts, axis=1), -cfg.clip, cfg.clip).astype(np.float32)
+        return self.encoder.features()
 
     def decode(self, u: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
         """(n, 4) env actions for policy actions ``u`` at attitudes ``quaternion`` (residual hover)."""
-        cfg = self.spec.action
-        R = quat_to_rotmat_np(np.asarray(quaternion, dtype=np.float64))
-        if cfg.mode == "rates":
-            rates = cfg.rate_scale * self.scaling.max_rate * u[:, :3]
-        else:
-            tilt = math.radians(cfg.max_tilt_deg)
-            roll, pitch = tilt * u[:, 0], tilt * u[:, 1]
-            z_h = np.stack([np.cos(roll) * np.sin(pitch), -np.sin(roll), np.cos(roll) * np.cos(pitch)], axis=1)
-            fx, fy = R[:, 0, 0], R[:, 1, 0]
-            nf = np.hypot(fx, fy)
-            ok = nf > 1e-9
-            c = np.where(ok, fx / np.where(ok, nf, 1.0), 1.0)
-            s_ = np.where(ok, fy / np.where(ok, nf, 1.0), 0.0)
-            z_w = np.stack([c * z_h[:, 0] - s_ * z_h[:, 1], s_ * z_h[:, 0] + c * z_h[:, 1], z_h[:, 2]], axis=1)
-            z_b = np.einsum("nji,nj->ni", R, z_w)
-            rates = np.stack([-cfg.attitude_gain * z_b[:, 1], cfg.attitude_gain * z_b[:, 0],
-                              cfg.rate_scale * self.scaling.max_rate * u[:, 2]], axis=1)
-        thrust = self._hover_thrust * (1.0 + cfg.thrust_scale * u[:, 3])
-        if cfg.tilt_compensation:
-            cz = R[:, 2, 2]
-            thrust = thrust * np.where(cz * cfg.max_tilt_factor <= 1.0, cfg.max_tilt_factor,
-                                       1.0 / np.where(cz * cfg.max_tilt_factor <= 1.0, 1.0, cz))
-        cmd = np.concatenate([rates, thrust[:, None]], axis=1)
-        lo, hi = self._lo, self._hi
-        return np.clip(2.0 * (cmd - lo) / (hi - lo) - 1.0, -1.0, 1.0).astype(np.float32)
+        return self.decoder.decode(u, quaternion)
 
 
 def _vec_env_base():

@@ -74,9 +74,10 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from wt_inspect_env.dynamics import quat_to_rotmat_np
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.validation import check_array, check_choice, check_positive, check_unknown_options
+
+from .interface import BatchedDecoder, BatchedFeatures, camera_heading  # noqa: F401 - camera_heading re-exported
 
 FEATURE_SIZES: dict[str, int] = {
     "ideal_body": 3, "point_body": 3, "velocity_body": 3, "gravity_body": 3, "heading": 2,
@@ -230,32 +231,11 @@ class ShapingConfig:
             -(1.0 - heading_cos) / (1.0 - math.cos(math.radians(self.centering_fine_scale_deg))))
 
 
-def camera_heading(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[float, float]:
-    """``(sin, cos)`` of the horizontal angle from the camera axis (the horizontal projection of
-    ``R e_x``; the gimbal levels the camera) to the inspection point; ``(0, 1)`` when either is
-    vertical. Plain floats, so the scalar and the batched agent paths agree to the bit."""
-    fx, fy = float(R[0, 0]), float(R[1, 0])
-    ax, ay = float(point[0] - position[0]), float(point[1] - position[1])
-    nf, na = math.hypot(fx, fy), math.hypot(ax, ay)
-    if nf < 1e-9 or na < 1e-9:
-        return 0.0, 1.0
-    return (fx * ay - fy * ax) / (nf * na), (fx * ax + fy * ay) / (nf * na)
-
-
-def _horizontal_direction(normal: np.ndarray, previous: np.ndarray | None) -> np.ndarray:
-    """``n_xy / |n_xy|`` as the environment's reference defines the stand-off direction; for a
-    (nearly) vertical normal, the previous direction (or +x) - the env does the same along its path."""
-    nx, ny = float(normal[0]), float(normal[1])
-    norm = math.hypot(nx, ny)
-    if norm > 1e-6:
-        return np.array([nx / norm, ny / norm, 0.0])
-    return previous.copy() if previous is not None else np.array([1.0, 0.0, 0.0])
-
-
 class FeatureEncoder:
-    """Turns the env's Dict observations into the feature vector (stateful: error integral, last
+    """Turns one drone's Dict observations into the feature vector (stateful: error integral, last
     action). Call :meth:`reset` at an episode start, :meth:`update` on *every* observation (each
     100 Hz step, also while an action is held) and :meth:`note_action` with each new policy action.
+    A validated front over a :class:`~agents.interface.BatchedFeatures` of one drone.
     """
 
     def __init__(self, config: FeatureConfig, *, standoff: float, dt: float, max_rate: float) -> None:
@@ -265,94 +245,48 @@ class FeatureEncoder:
         self.standoff = check_positive("standoff", standoff)
         self.dt = check_positive("dt", dt)
         self.max_rate = check_positive("max_rate", max_rate)
-        self._decay = math.exp(-self.dt / config.integral_time_s)
-        self._gain = config.integral_time_s * (1.0 - self._decay)
-        self._integral_limit = config.clip * config.integral_time_s * config.position_scale
+        self._batch = BatchedFeatures(config, 1, standoff=self.standoff, dt=self.dt, max_rate=self.max_rate)
         self.reset()
 
     def reset(self) -> None:
-        self._integral = np.zeros(3)
-        self._last_action = np.zeros(4)
-        self._hdir: np.ndarray | None = None
+        self._batch.reset(0)
         self._features: np.ndarray | None = None
 
     def note_action(self, action: np.ndarray) -> None:
         """Remember the policy action now being applied (the ``last_action`` feature)."""
-        self._last_action = np.asarray(action, dtype=np.float64).copy()
+        self._batch.note_action(np.asarray(action, dtype=np.float64).reshape(1, 4))
         self._features = None
 
     def ideal_position(self, obs: Mapping[str, np.ndarray]) -> np.ndarray:
         """The stand-off pose for this observation (updates the remembered horizontal direction)."""
-        self._hdir = _horizontal_direction(np.asarray(obs["normal"], dtype=np.float64), self._hdir)
-        return np.asarray(obs["point"], dtype=np.float64) + self.standoff * self._hdir
+        normal = np.asarray(obs["normal"], dtype=np.float64).reshape(1, 3)
+        point = np.asarray(obs["point"], dtype=np.float64).reshape(1, 3)
+        return self._batch.ideal_positions(slice(0, 1), normal, point)[0]
 
     def update(self, obs: Mapping[str, Any]) -> np.ndarray:
         """Consume one observation; returns the feature vector (float32)."""
-        x = np.asarray(obs["position"], dtype=np.float64)
-        R = quat_to_rotmat_np(np.asarray(obs["quaternion"], dtype=np.float64))
-        ideal = self.ideal_position(obs)
-        err = ideal - x
-        # exact (zero-order-hold) discretisation of dI/dt = e - I / T: I -> T e for a constant e
-        self._integral = self._integral * self._decay + self._gain * err
-        n = float(np.linalg.norm(self._integral))
-        if n > self._integral_limit:
-            self._integral *= self._integral_limit / n
-        self._obs = obs
-        self._R = R
-        self._err = err
+        self._batch.update(slice(0, 1), {k: np.asarray(v, dtype=np.float64)[None] for k, v in obs.items()})
         self._features = None
         return self.features()
 
     def pose_error(self) -> np.ndarray:
         """World-frame ``ideal - position`` of the last :meth:`update` [m]."""
-        return self._err
+        return self._batch.err[0]
 
     def heading_cos(self) -> float:
         """Cosine of the camera's horizontal heading error at the last :meth:`update`."""
-        return camera_heading(self._R, np.asarray(self._obs["position"], dtype=np.float64),
-                              np.asarray(self._obs["point"], dtype=np.float64))[1]
+        return self._batch.heading_cos(0)
 
     def features(self) -> np.ndarray:
         """The feature vector of the last :meth:`update` (and last :meth:`note_action`)."""
-        if self._features is not None:
-            return self._features
-        cfg, obs, R = self.config, self._obs, self._R
-        Rt = R.T
-        x = np.asarray(obs["position"], dtype=np.float64)
-        point = np.asarray(obs["point"], dtype=np.float64)
-        parts: list[np.ndarray] = []
-        for g in cfg.groups:
-            if g == "ideal_body":
-                parts.append(Rt @ self._err / cfg.position_scale)
-            elif g == "point_body":
-                parts.append(Rt @ (point - x) / self.standoff)
-            elif g == "velocity_body":
-                v_rel = np.asarray(obs["velocity_body"], dtype=np.float64) - Rt @ np.asarray(
-                    obs["point_velocity"], dtype=np.float64)
-                parts.append(v_rel / cfg.velocity_scale)
-            elif g == "gravity_body":
-                parts.append(-R[2, :])
-            elif g == "heading":
-                parts.append(np.array(camera_heading(R, x, point)))
-            elif g == "body_rates":
-                parts.append(np.asarray(obs["body_rates"], dtype=np.float64) / self.max_rate)
-            elif g == "normal_body":
-                parts.append(Rt @ np.asarray(obs["normal"], dtype=np.float64))
-            elif g == "integral":
-                parts.append(Rt @ self._integral / (cfg.integral_time_s * cfg.position_scale))
-            elif g == "last_action":
-                parts.append(self._last_action)
-            elif g == "progress":
-                parts.append(np.asarray(obs["progress"], dtype=np.float64).reshape(1))
-            elif g == "coverage":
-                parts.append(np.asarray(obs["coverage"], dtype=np.float64).reshape(1))
-        f = np.clip(np.concatenate(parts), -cfg.clip, cfg.clip).astype(np.float32)
-        self._features = f
-        return f
+        if self._features is None:
+            self._features = self._batch.features()[0]
+        return self._features
 
 
 class ResidualHoverAction:
-    """Policy action ``u in [-1, 1]^4`` -> the env's normalised action (see the module docstring)."""
+    """Policy action ``u in [-1, 1]^4`` -> the env's normalised action (see the module docstring);
+    a validated front over a :class:`~agents.interface.BatchedDecoder`."""
 
     def __init__(self, config: ActionConfig, scaling: ActionScaling) -> None:
         if not isinstance(config, ActionConfig):
@@ -360,36 +294,21 @@ class ResidualHoverAction:
         self.config = config
         self.scaling = scaling
         self.hover_thrust = scaling.hover_thrust
+        self._batch = BatchedDecoder(config, scaling)
 
-    def command(self, u: Any, quaternion: Any) -> np.ndarray:
-        """The physical command ``[p, q, r, T]`` (before saturation at the airframe's bounds)."""
+    def _checked(self, u: Any, quaternion: Any) -> tuple[np.ndarray, np.ndarray]:
         u = check_array("policy action", u, (4,))
         if np.any(np.abs(u) > 1.0 + 1e-6):
             raise ValueError(f"policy action must lie in [-1, 1]^4, got {np.array2string(u)}")
-        cfg = self.config
-        R = quat_to_rotmat_np(check_array("quaternion", quaternion, (4,)))
-        if cfg.mode == "rates":
-            rates = cfg.rate_scale * self.scaling.max_rate * u[:3]
-        else:   # attitude: u[0], u[1] = desired roll, pitch in the heading frame; P loop to rates
-            tilt = math.radians(cfg.max_tilt_deg)
-            roll, pitch = tilt * u[0], tilt * u[1]
-            z_h = np.array([math.cos(roll) * math.sin(pitch), -math.sin(roll), math.cos(roll) * math.cos(pitch)])
-            fx, fy = R[0, 0], R[1, 0]
-            nf = math.hypot(fx, fy)
-            c, s_ = (fx / nf, fy / nf) if nf > 1e-9 else (1.0, 0.0)
-            z_w = np.array([c * z_h[0] - s_ * z_h[1], s_ * z_h[0] + c * z_h[1], z_h[2]])
-            z_b = R.T @ z_w     # desired thrust axis in the body frame; rotate e_z onto it
-            rates = np.array([-cfg.attitude_gain * z_b[1], cfg.attitude_gain * z_b[0],
-                              cfg.rate_scale * self.scaling.max_rate * u[2]])
-        thrust = self.hover_thrust * (1.0 + cfg.thrust_scale * u[3])
-        if cfg.tilt_compensation:
-            c = R[2, 2]    # cos(tilt): body z . world z
-            thrust *= cfg.max_tilt_factor if c * cfg.max_tilt_factor <= 1.0 else 1.0 / c
-        return np.concatenate([rates, [thrust]])
+        return u[None], check_array("quaternion", quaternion, (4,))[None]
+
+    def command(self, u: Any, quaternion: Any) -> np.ndarray:
+        """The physical command ``[p, q, r, T]`` (before saturation at the airframe's bounds)."""
+        return self._batch.command(*self._checked(u, quaternion))[0]
 
     def __call__(self, u: Any, quaternion: Any) -> np.ndarray:
         """The env's normalised action (float32) for policy action ``u`` at attitude ``quaternion``."""
-        return self.scaling.to_action(self.command(u, quaternion))
+        return self._batch.decode(*self._checked(u, quaternion))[0]
 
 
 def encoder_for(env: gym.Env, spec: AgentSpec) -> FeatureEncoder:
