@@ -99,10 +99,11 @@ _HARNESS_SOURCES = ("runner.py", "harness_metrics.py", "scenarios.py", "registry
 def code_sources() -> list[Path]:
     """Every source file that can change a run's result: the environment package, every package
     that registers a policy (``controllers``, ``agents`` and any third-party one, found through
-    the entry points) and the harness's outcome-deciding modules (:data:`_HARNESS_SOURCES`)."""
+    the entry points) - their Python and the C they compile (the flight and world cores) - and the
+    harness's outcome-deciding modules (:data:`_HARNESS_SOURCES`)."""
     roots = [Path(wt_inspect_env.__file__).parent]
     roots += [r for r in registry.source_roots() if r not in roots]
-    files = [f for root in roots for f in sorted(root.rglob("*.py"))]
+    files = [f for root in roots for pattern in ("*.py", "*.c") for f in sorted(root.rglob(pattern))]
     here = Path(__file__).parent
     return files + [here / name for name in _HARNESS_SOURCES]
 
