@@ -60,6 +60,20 @@ class ScriptedPX4:
             self.states.append(msg)
 
 
+def _drain(px4: ScriptedPX4, quiet_s: float = 0.2, limit_s: float = 3.0) -> None:
+    """Wait until the client's reader has taken every message the server sent before it stopped
+    (the last ones can still be in flight when the server's thread returns, more so on a loaded
+    machine): until nothing new has arrived for ``quiet_s``."""
+    last, quiet_since, end = -1, time.monotonic(), time.monotonic() + limit_s
+    while time.monotonic() < end:
+        n = len(px4.sensors) + len(px4.gps) + len(px4.states)
+        if n != last:
+            last, quiet_since = n, time.monotonic()
+        elif time.monotonic() - quiet_since > quiet_s:
+            return
+        time.sleep(0.02)
+
+
 def serve(world, controls, steps, *, cfg=None, start_ned=(0.0, 0.0, -20.0), during=None):
     params, mesh, frame = world
     port = free_tcp_port()
@@ -74,6 +88,7 @@ def serve(world, controls, steps, *, cfg=None, start_ned=(0.0, 0.0, -20.0), duri
         if during is not None:
             during(px4, vehicle)
         th.join(timeout=30)
+        _drain(px4)
     finally:
         px4.link.close()
         server.close()
