@@ -97,7 +97,7 @@ def _turbine(env: Any) -> Any:
     """The turbine the MPCs keep ``d_min`` from: the mission's collision mesh of every rotor
     position (the geometry the simulator collides the drone with)."""
     from wt_inspect_env.proximity import TurbineProximity
-    return TurbineProximity.from_mission(env.mission)
+    return TurbineProximity.from_env(env)
 
 
 def _vtnmpc_policy(env: Any, **options: Any) -> Any:

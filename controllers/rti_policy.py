@@ -90,7 +90,9 @@ import casadi as ca
 import numpy as np
 
 from wt_inspect_env.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
+from wt_inspect_env.env_config import D_MIN_RATIO
 from wt_inspect_env.geometry import HorizontalNormal
+from wt_inspect_env.planner.config import CLEARANCE_BRAKE
 from wt_inspect_env.policy import Policy, check_observation, state_from_observation
 from wt_inspect_env.proximity import TurbineProximity
 from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
@@ -101,7 +103,6 @@ from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 
 BACKENDS = ("rti", "ipopt")
 N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
-DEFAULT_D_MIN_RATIO = 3.0 / 7.0   # d_min / d_ref: 3 m at the paper's 7 m stand-off
 SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
 REFERENCE_D_REF = 7.0         # [m] the stand-off every weight set was tuned at (the paper's)
 REFERENCE_DRONE = "matrice100"  # the drone they were tuned for
@@ -383,7 +384,7 @@ class MPCConfig:
     prepare_ahead: bool = False
     clearance: bool = True
     d_min: float | None = None
-    clearance_brake: float = 3.0
+    clearance_brake: float = CLEARANCE_BRAKE
     clearance_l1: float = 1e3
     clearance_l2: float = 1e3
     clearance_queries: int = 4
@@ -425,7 +426,7 @@ class MPCConfig:
         if not isinstance(self.clearance, bool):
             raise ValueError(f"clearance must be a bool, got {self.clearance!r}")
         if self.d_min is None:
-            put("d_min", DEFAULT_D_MIN_RATIO * self.d_ref)
+            put("d_min", D_MIN_RATIO * self.d_ref)
         put("d_min", check_positive("d_min", self.d_min))
         if self.d_min >= self.d_ref:
             raise ValueError(f"d_min must be below d_ref ({self.d_ref!r} m), got {self.d_min!r}")
@@ -766,7 +767,7 @@ class RTIPolicy(Policy):
         x = self._align(state_from_observation(o))
         self.on_measurement(x)
         if self.obstacles is not None:
-            self.obstacles.update(o["point"])
+            self.obstacles.update(o["point"], float(o["progress"][0]) if "progress" in o else None)
         if self._ahead:                      # only the feedback QP stands between obs and command
             u = self.solver.feedback(self.model_state(x))
             self._last_solve = (self.model_state(x), self._prepared_params)

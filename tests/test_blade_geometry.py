@@ -181,3 +181,22 @@ def test_a_custom_blade_shape():
     assert len(surfaces) >= 9                                   # sides and leading edges of 3 blades
     p = plan_inspection(t, rotor_turn_deg=None)
     assert sorted(x.surface for x in p.tour) == list(range(len(surfaces)))
+
+
+def test_rotor_turn_auto_pins_the_paper_turn_only_on_the_paper_turbine():
+    """``rotor_turn_deg="auto"`` (default): 120 deg on the paper's turbine, the planner's choice on any
+    other - the NREL 5-MW has no fixed-120-deg plan at d_min = 3 m (its blade roots beside the hub)."""
+    from wt_inspect_env.env_config import EnvConfig
+    from wt_inspect_env.mission import build_mission
+
+    assert EnvConfig().rotor_turn_deg == 120.0
+    assert EnvConfig(turbine={"preset": "nrel-5mw"}).rotor_turn_deg is None
+    assert EnvConfig(turbine={"rotor_azimuth_deg": 47.0}).rotor_turn_deg is None
+    assert EnvConfig(rotor_turn_deg=90.0, turbine={"preset": "nrel-5mw"}).rotor_turn_deg == 90.0
+    with pytest.raises(ValueError, match="rotor_turn_deg must be a number, None or 'auto', got 'sometimes'"):
+        EnvConfig(rotor_turn_deg="sometimes")
+    with pytest.raises(ValueError, match="surface .* cannot be inspected"):
+        build_mission(EnvConfig(turbine={"preset": "nrel-5mw", "mesh_step": 2.0}, rotor_turn_deg=120.0))
+    m = build_mission(EnvConfig(turbine={"preset": "nrel-5mw", "mesh_step": 2.0}))
+    assert set(m.surface[m.surface >= 0].tolist()) == set(range(len(m.surfaces))) == set(range(12))
+    assert m.plan.rotor_turns_deg and m.plan.rotor_turns_deg[0] != 120.0

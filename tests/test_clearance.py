@@ -74,6 +74,53 @@ def test_the_active_rotor_position_follows_the_inspection_point_forward_only():
     np.testing.assert_allclose(turb.closest([[0.0, 0.0, 5.0]])[1], [4.0])
 
 
+def test_a_transit_point_near_the_next_mesh_does_not_switch_without_lying_on_it():
+    a, b = _box((0, 0, 0), (1, 1, 1)), _box((20, 0, 0), (1, 1, 1))
+    turb = TurbineProximity([a, b])
+    assert turb.update([18.5, 0.0, 0.0]) == 0         # 0.5 m from mesh 1, 17.5 m from mesh 0: not on it
+    assert turb.update([20.0, 0.0, 1.0]) == 1
+
+
+def test_with_phase_starts_the_rotor_position_follows_the_progress_exactly():
+    a, b, c = _box((0, 0, 0), (1, 1, 1)), _box((20, 0, 0), (1, 1, 1)), _box((40, 0, 0), (1, 1, 1))
+    turb = TurbineProximity([a, b, c], phase_starts=[0.4, 0.7])
+    assert turb.update([20.0, 0.0, 1.0], 0.1) == 0    # the point on mesh 1 does not matter
+    assert turb.update([0.0, 0.0, 1.0], float(np.float32(0.4))) == 1   # the hold's first sample (float32 obs)
+    assert turb.update([0.0, 0.0, 1.0], 0.5) == 1
+    assert turb.update([0.0, 0.0, 1.0], 0.9) == 2 and turb.update([0.0, 0.0, 1.0], 0.1) == 2   # forward only
+    turb.reset()
+    assert turb.update([40.0, 0.0, 1.0], 0.0) == 0
+    with pytest.raises(ValueError, match="phase_starts"):
+        TurbineProximity([a, b, c], phase_starts=[0.4])
+    with pytest.raises(ValueError, match="phase_starts"):
+        TurbineProximity([a, b, c], phase_starts=[0.7, 0.4])
+
+
+def test_the_registered_mpcs_switch_rotor_position_exactly_when_the_env_does():
+    """Fly the paper mission's reference with a stand-in drone (teleported to the ideal pose) and
+    check that the MPCs' proximity (built as the registry builds it) is on the env's rotor position
+    at every step - transits included, where the inspection point lies on neither mesh."""
+    import gymnasium as gym
+
+    env = gym.make("WindTurbineInspection-v0", wind="none", reference_mode="open_loop")
+    u = env.unwrapped
+    turb = TurbineProximity.from_env(env)
+    obs, _ = env.reset(seed=0)
+    ref = u.world.reference
+    hover = u.scaling.hover_action()
+    switched = []
+    for _ in range(200_000):
+        obs, _, term, trunc, info = env.step(hover)
+        idx = turb.update(obs["point"], float(obs["progress"][0]))
+        assert idx == int(u.world.phase_index[0]), (info["time"], idx, int(u.world.phase_index[0]))
+        if idx and not switched:
+            switched.append(info["time"])
+        if term or trunc or ref.sample.done[0]:
+            break
+    assert switched, "the paper mission has a rotor turn"
+    env.close()
+
+
 @pytest.mark.parametrize("cfg", [VTNMPCConfig, NMPCConfig])
 @pytest.mark.parametrize("d_min", [7.0, 9.5])
 def test_d_min_not_below_d_ref_is_a_one_line_error(cfg, d_min):
@@ -121,8 +168,8 @@ def test_the_plan_keeps_d_min_from_a_wall_it_is_pushed_towards():
     assert x_off.min() < 0.5 + on.config.d_min - 2.0
 
 
-def _fly(policy, offset, seconds: float) -> tuple[float, dict]:
-    env = gym.make("WindTurbineInspection-v0", start_offset=offset, time_limit_s=seconds).unwrapped
+def _fly(policy, offset, seconds: float, **env_options) -> tuple[float, dict]:
+    env = gym.make("WindTurbineInspection-v0", start_offset=offset, time_limit_s=seconds, **env_options).unwrapped
     try:
         policy = policy(env) if callable(policy) and not hasattr(policy, "act") else policy
         fields = [DistanceField(t.mesh.triangles) for t in env.mission.turbines]
@@ -152,10 +199,11 @@ def test_vtnmpc_plus_started_30_m_above_keeps_d_min_where_it_passed_close_withou
     # The issue's flight without the constraint was on CasADi's plugin from its preset barrier
     # parameter (the default direct path from mu0 = 1 happens to pass 4.7 m from the blade).
     from controllers.rti import RTIOptions
+    # the first pose the target from the start (no approach): the constraint alone must hold d_min
     without, _ = _fly(_vtnmpc_plus(False, solver=RTIOptions(qp_mode="speed_abs", qp_solver="casadi")),
-                      (0.0, 0.0, 30.0), 7.0)
-    with_, info = _fly(_vtnmpc_plus(True), (0.0, 0.0, 30.0), 7.0)
-    assert without < 2.0                                   # the unconstrained controller passes close
+                      (0.0, 0.0, 30.0), 7.0, reference_approach_speed=None)
+    with_, info = _fly(_vtnmpc_plus(True), (0.0, 0.0, 30.0), 7.0, reference_approach_speed=None)
+    assert without < 3.0                                   # the unconstrained controller enters d_min
     assert with_ >= 3.0                                    # d_min at the paper's 7 m stand-off
     assert info["termination"] is None
 
@@ -209,3 +257,48 @@ def test_the_direct_hpipm_path_carries_the_clearance_constraint():
     assert pol.solver.qp_solver == "hpipm" and pol.last_stats.status == "SUCCESS"
     plan = pol.predicted_states[:, 0]
     assert 0.5 + pol.config.d_min - 1e-3 <= plan.min() < 0.5 + pol.config.d_min + 0.5
+
+
+def _peak_speed_flight(offset, seconds: float, **env_options) -> dict:
+    """VT-NMPC+ (as registered: clearance on) from ``offset``: its peak ground speed, its least
+    distance to the turbine and where it ends."""
+    env = gym.make("WindTurbineInspection-v0", start_offset=offset, time_limit_s=seconds, **env_options).unwrapped
+    try:
+        policy = _vtnmpc_plus(True)(env)
+        fields = [DistanceField(t.mesh.triangles) for t in env.mission.turbines]
+        obs, info = env.reset(seed=0)
+        policy.reset()
+        out = {"peak_speed": 0.0, "clearance": np.inf, "approached": info["approaching"]}
+        while True:
+            obs, _, term, trunc, info = env.step(policy.act(obs))
+            x = env.sim.state[0]
+            out["peak_speed"] = max(out["peak_speed"], float(np.linalg.norm(x[3:6])))
+            out["clearance"] = min(out["clearance"], float(fields[env.phase_index].distance(x[None, 0:3], 50.0)[0]))
+            if term or trunc:
+                break
+        out.update(termination=info["termination"], approaching=info["approaching"],
+                   lag=float(np.linalg.norm(x[0:3] - info["ideal_position"])),
+                   speed=env.config.reference_approach_speed)
+        return out
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("offset,wind", [
+    ((0.0, 0.0, 30.0), "none"),
+    ((-20.0, 10.0, 15.0), {"type": "dryden", "mean_speed": 9.7, "direction": [1.0, 0.3, 0.0]}),
+])
+def test_far_starts_approach_the_path_at_the_braking_bound(offset, wind):
+    """Issue 30: from a far start the first stand-off pose was the target at once and VT-NMPC+ raced
+    to it (14-16 m/s from 30 m above, 21 m/s from 25 m off in 9.7 m/s turbulence - measured with
+    ``reference_approach_speed=None``). The reference's approach (default: sqrt(2 a (d_ref - d_min))
+    = 4.9 m/s here) holds the flight to about that speed, clear of the turbine, onto the path."""
+    got = _peak_speed_flight(offset, 12.0, wind=wind)
+    assert got["speed"] == pytest.approx((2.0 * 3.0 * 4.0) ** 0.5)
+    assert got["approached"] and not got["approaching"]          # on the path by the end
+    assert got["peak_speed"] <= 1.15 * got["speed"], got
+    assert got["clearance"] >= 3.0 and got["termination"] is None and got["lag"] < 1.0, got
+    if wind == "none":
+        before = _peak_speed_flight(offset, 12.0, wind=wind, reference_approach_speed=None)
+        assert not before["approached"] and before["peak_speed"] > 2.5 * got["speed"], before   # 14 m/s

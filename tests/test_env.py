@@ -307,3 +307,81 @@ def test_reference_thresholds_scale_with_the_standoff():
     assert env.unwrapped.world.reference.config.lag_threshold == pytest.approx(1.5)
     assert env.unwrapped.world.reference.config.stop_threshold == pytest.approx(3.0)
     env.close()
+
+
+def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
+    """The closed-loop reference does not wait for ever: a hovering drone (still air) lets it run
+    2 m ahead and wait ``reference_stall_time``; by default the episode then ends (truncated, not
+    complete), with ``reference_on_stall="skip"`` the point moves on to the end without the drone -
+    the mission ends (mission_complete) well before the time limit, with the stall on record."""
+    env = make(wind="none", reference_stall_time=3.0)
+    env.reset(seed=0)
+    hover = env.unwrapped.scaling.hover_action()
+    for _ in range(2000):
+        _, _, term, trunc, info = env.step(hover)
+        if term or trunc:
+            break
+    assert trunc and not term and not info["mission_complete"] and info["stalls"] == 1
+    assert info["time"] == pytest.approx(3.0 + 2.0 / 0.7, abs=1.5)    # ~2 m ahead, then 3 s without progress
+    env.close()
+    env = make(wind="none", reference_stall_time=3.0, reference_on_stall="skip")
+    u = env.unwrapped
+    env.reset(seed=0)
+    hover = u.scaling.hover_action()
+    info, term, trunc = {}, False, False
+    while not (term or trunc):
+        _, _, term, trunc, info = env.step(hover)
+    assert trunc and not term and info["mission_complete"]      # a completed mission truncates
+    assert info["stalls"] >= 1 and info["skipped_m"] > 0.5 * u.world.reference.total_length
+    assert info["time"] < 0.6 * u.world.time_limit        # the nominal time plus the stall, not the limit
+    env.close()
+    env = make(wind="none", reference_stall_time=3.0, reference_on_stall="skip")
+    env.reset(seed=0)
+    _, _, _, _, info = env.step(env.unwrapped.scaling.hover_action())
+    assert info["stalls"] == 0 and info["skipped_m"] == 0.0
+    env.close()
+    with pytest.raises(ValueError, match="reference_stall_time"):
+        make(reference_stall_time=-1.0)
+    with pytest.raises(ValueError, match="d_min"):
+        make(d_min=8.0)
+    with pytest.raises(ValueError, match="reference_on_stall"):
+        make(reference_on_stall="wait")
+
+
+def test_reference_approach_speed_option():
+    """"auto" is the braking bound sqrt(2 a (standoff - d_min)); bad values name the field."""
+    from wt_inspect_env.env_config import EnvConfig
+
+    assert EnvConfig().reference_approach_speed == pytest.approx((2.0 * 3.0 * (7.0 - 3.0)) ** 0.5)
+    assert EnvConfig(standoff=10.0, d_min=4.0).reference_approach_speed == pytest.approx(6.0)
+    assert EnvConfig(reference_approach_speed=None).reference_approach_speed is None
+    assert EnvConfig(reference_approach_speed=2.5).reference_approach_speed == 2.5
+    for bad in ("fast", 0.0, -1.0, float("nan"), True):
+        with pytest.raises(ValueError, match="reference_approach_speed"):
+            EnvConfig(reference_approach_speed=bad)
+
+
+def test_clearance_shortfall_matches_a_brute_force_distance():
+    """The reference's allowance for ideal poses inside d_min, against trimesh's closest point on
+    every triangle (no spatial search). At the default d_min the planner's clearance is d_min, so
+    no ideal pose falls short; a stricter d_min (5 m) makes the blade roots fall short."""
+    from trimesh import triangles as tt
+
+    from wt_inspect_env.reference import standoff_poses
+    env = make("WindTurbineInspection-v0")
+    u = env.unwrapped
+    m = u.mission
+    assert m.clearance_shortfall(u.config.standoff, u.config.d_min).max() == 0.0
+    d_min = 5.0
+    short = m.clearance_shortfall(u.config.standoff, d_min)
+    assert (short > 0).any()
+    ideal = standoff_poses(m.points, m.normals, u.config.standoff)
+    rng = np.random.default_rng(0)
+    pick = np.concatenate([np.flatnonzero(short > 0)[:40], rng.choice(len(ideal), 40, replace=False)])
+    for ph in np.unique(m.phase[pick]):
+        sel = pick[m.phase[pick] == ph]
+        tri = np.asarray(m.turbines[int(ph) - 1].all_triangles, dtype=float).reshape(-1, 3, 3)
+        d = np.array([np.linalg.norm(tt.closest_point(tri, np.repeat(q[None], len(tri), 0)) - q, axis=1).min()
+                      for q in ideal[sel]])
+        np.testing.assert_allclose(short[sel], np.maximum(0.0, d_min - d), atol=1e-6)
+    env.close()

@@ -322,3 +322,25 @@ def test_results_md_states_the_runs_own_camera_rate_occlusion_and_control_step(t
                    figures=False, progress=False)
     metrics_line = next(l for l in (tmp_path / "results.md").read_text().splitlines() if l.startswith("- Metrics"))
     assert frames in metrics_line and step in metrics_line
+
+
+def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
+    """A drone that only hovers: the closed-loop reference waits for it, stalls after
+    reference_stall_time and ends the run; results.csv / results.md carry the stall (the columns
+    were empty before: the row did not read the stall metrics)."""
+    class Hover:
+        def __init__(self, env):
+            self.a = env.scaling.hover_action()
+
+        def reset(self, seed=None):
+            pass
+
+        def act(self, obs):
+            return self.a
+
+    res = evaluate_policy(lambda env: Hover(env), scenario="surface", wind=0.0,
+                          env_overrides={"reference_stall_time": 2.0}, record=False)
+    row = res.row()
+    assert res.termination == "reference_stall" and row["termination"] == "reference_stall"
+    assert row["stalls"] == 1.0 and row["skipped_path_m"] == 0.0
+    assert {"stalls", "skipped_path_m"} <= set(CSV_COLUMNS)

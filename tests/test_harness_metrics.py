@@ -94,8 +94,11 @@ def test_geometry_index_counts_the_phase_change_holds():
 
 
 def test_d_min_is_the_mpcs_default():
-    from controllers.rti_policy import DEFAULT_D_MIN_RATIO
-    assert D_MIN_RATIO == DEFAULT_D_MIN_RATIO
+    from controllers.vtnmpc import VTNMPCConfig
+    from wt_inspect_env.env_config import EnvConfig
+    for d_ref in (7.0, 0.5):
+        assert VTNMPCConfig(d_ref=d_ref).d_min == pytest.approx(EnvConfig(standoff=d_ref).d_min)
+        assert EnvConfig(standoff=d_ref).d_min == pytest.approx(D_MIN_RATIO * d_ref)
 
 
 def test_crafted_line_past_a_blade_matches_the_brute_force():

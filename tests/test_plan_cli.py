@@ -81,14 +81,18 @@ def test_plan_bad_input_exits_2_naming_the_field_and_writes_nothing(tmp_path, ca
 
 def test_plan_rotor_turn_auto_and_a_turbine_json(tmp_path, capsys):
     # a rotor stopped at 20 deg azimuth, facing 45 deg: the paper's 120 deg turn cannot inspect every
-    # surface; with auto the planner chooses the turn, and says which surfaces it inspects where
+    # surface; with auto (the default on any turbine but the paper's) the planner chooses the turn
     base = ["--no-plot", "--rotor-azimuth", "20", "--facing", "45"]
-    assert plan_cmd.main(["--out", str(tmp_path / "fixed"), *base], prog="wt-inspect plan") == 2
+    assert plan_cmd.main(["--out", str(tmp_path / "fixed"), *base, "--rotor-turn", "120"],
+                         prog="wt-inspect plan") == 2
     assert "rotor_turn_deg" in capsys.readouterr().err
-    assert plan_cmd.main(["--out", str(tmp_path / "auto"), *base, "--rotor-turn", "auto", "--json"],
-                         prog="wt-inspect plan") == 0
-    summary = json.loads(capsys.readouterr().out)
-    assert summary["surfaces"] == 12 and (tmp_path / "auto" / "path.csv").is_file()
+    for name, extra in (("auto", ["--rotor-turn", "auto"]), ("default", [])):
+        assert plan_cmd.main(["--out", str(tmp_path / name), *base, *extra, "--json"], prog="wt-inspect plan") == 0
+        summary = json.loads(capsys.readouterr().out)
+        assert summary["surfaces"] == 12 and (tmp_path / name / "path.csv").is_file()
+        assert summary["rotor_turn_deg"] != 120.0
+    assert plan_cmd.main(["--out", str(tmp_path / "paper"), "--no-plot", "--json"], prog="wt-inspect plan") == 0
+    assert json.loads(capsys.readouterr().out)["rotor_turn_deg"] == 120.0     # the paper's turbine: its turn
     # the --turbine JSON is a TurbineSpec (a preset here); explicit options override its fields
     assert plan_cmd.main(["--out", str(tmp_path / "json"), "--no-plot", "--json", "--turbine",
                           '{"tower_height": 90.0, "blade_length": 30.0}', "--blade-length", "35"],

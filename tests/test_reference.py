@@ -201,6 +201,9 @@ def test_from_plan_and_reset_restart():
     ({"speed": 0}, "speed"), ({"mode": "fast"}, "mode"), ({"lag_threshold": -1}, "lag_threshold"),
     ({"lag_threshold": 2.0, "stop_threshold": 1.0}, "stop_threshold"), ({"standoff": float("inf")}, "standoff"),
     ({"phase_hold_time": -1.0}, "phase_hold_time"), ({"limit_standoff_speed": "yes"}, "limit_standoff_speed"),
+    ({"stall_time": 0.0}, "stall_time"), ({"stall_time": float("nan")}, "stall_time"),
+    ({"on_stall": "wait"}, "on_stall"), ({"approach_speed": 0.0}, "approach_speed"),
+    ({"approach_speed": float("inf")}, "approach_speed"),
 ])
 def test_config_rejects_bad_values(kwargs, field):
     with pytest.raises(ValueError, match=field):
@@ -246,3 +249,225 @@ def test_single_point_runs_and_zero_hold():
         out = ref.step(DT)
     np.testing.assert_allclose(out.point, [6, 0, 50])
     assert out.progress == 1.0 and out.speed_factor == 0.0
+
+
+# ---------------------------------------------------------------------------- stalls and clearance
+def _hold_drone(ref, drone, steps):
+    out = None
+    for _ in range(steps):
+        out = ref.step(DT, drone)
+    return out
+
+
+def test_a_blocked_drone_stalls_and_the_reference_moves_on_to_the_end():
+    pts, nrm, s, ph = straight_path(10.0)
+    cfg = ReferenceConfig(speed=0.7, lag_threshold=1.0, stop_threshold=2.0, stall_time=5.0, on_stall="skip")
+    ref = InspectionReference(pts, nrm, s, ph, cfg)
+    drone = ref.reset().ideal_position.copy()           # the drone never moves
+    t_wait = None
+    stalled_at = None
+    out = ref.reset()
+    for _ in range(1, 5000):
+        out = ref.step(DT, drone)
+        if t_wait is None and out.speed_factor < 0.1:
+            t_wait = out.time                           # the point stopped waiting ~2 m ahead
+        if out.stalled:
+            stalled_at = out.time
+            assert ref.stalls == 1 and out.speed_factor == 1.0
+        if out.done:
+            break
+    assert out.done and ref.stalls == 1                 # one stall, then straight on to the end
+    assert stalled_at == pytest.approx(t_wait + 5.0, abs=2 * DT)
+    # after the stall the point moves at the nominal speed: the rest of the path at 0.7 m/s
+    assert out.time == pytest.approx(stalled_at + (10.0 - 2.0) / 0.7, abs=0.05)   # it stalled 2 m ahead
+    assert ref.skipped == pytest.approx(10.0 - 2.0, abs=0.05)
+    ref.reset()
+    assert ref.stalls == 0 and ref.skipped == 0.0
+
+
+def test_by_default_a_stall_is_counted_once_and_the_point_stays():
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=5.0))   # on_stall="end"
+    drone = ref.reset().ideal_position.copy()
+    flags = [ref.step(DT, drone).stalled for _ in range(1500)]
+    out = ref.step(DT, drone)
+    assert sum(flags) == 1 and ref.stalls == 1 and ref.skipped == 0.0       # the env ends the episode here
+    assert not out.done and out.s == pytest.approx(2.0, abs=0.01)
+
+
+def test_without_stall_time_a_blocked_drone_waits_for_ever():
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=None))
+    drone = ref.reset().ideal_position.copy()
+    out = _hold_drone(ref, drone, 6000)                 # 60 s
+    assert not out.done and ref.stalls == 0 and out.s == pytest.approx(2.0, abs=0.01)
+
+
+def test_the_stall_ends_once_the_drone_is_back_and_the_closed_loop_resumes():
+    pts, nrm, s, ph = straight_path(20.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=2.0, on_stall="skip"))
+    drone = ref.reset().ideal_position.copy()
+    out = _hold_drone(ref, drone, 600)                  # stalls after ~2.9 + 2 s, then moves on
+    assert ref.stalls == 1 and out.speed_factor == 1.0
+    out = ref.step(DT, out.ideal_position)              # the drone is back on its pose: skip over
+    s_back = out.s
+    held = out.ideal_position.copy()
+    out = _hold_drone(ref, held, 400)                   # blocked again: the closed loop waits 2 m ahead ...
+    assert out.s == pytest.approx(s_back + 2.0, abs=0.02) and out.speed_factor < 0.1 and ref.stalls == 1
+    out = _hold_drone(ref, held, 300)                   # ... and stalls again after 2 s of no progress
+    assert ref.stalls == 2 and out.speed_factor == 1.0
+
+
+def test_reach_lets_the_point_advance_where_the_clearance_keeps_the_drone_off_its_pose():
+    pts, nrm, s, ph = straight_path(10.0)
+    cfg = ReferenceConfig(stall_time=None)
+    reach = np.full(len(pts), 1.5)                      # every ideal pose lies 1.5 m inside d_min
+    ref = InspectionReference(pts, nrm, s, ph, cfg, reach=reach)
+    plain = InspectionReference(pts, nrm, s, ph, cfg)
+    for off, sigma in ((1.5, 1.0), (2.5, 1.0), (3.0, math.sqrt(0.5))):
+        ref.reset(), plain.reset()
+        a = ref.step(DT, ref.ideal_position() + [0.0, off, 0.0])   # held off the pose, outwards
+        b = plain.step(DT, plain.ideal_position() + [0.0, off, 0.0])
+        assert a.speed_factor == pytest.approx(sigma, abs=1e-12)
+        assert b.speed_factor == pytest.approx(math.sqrt(min(1.0, max(0.0, 2.0 - off))), abs=1e-12)
+    # the shortfall is interpolated between samples like the path
+    reach = np.linspace(0.0, 1.0, len(pts))
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(mode="open_loop"), reach=reach)
+    ref.reset()
+    out = ref.step(0.5, None)
+    assert ref._batch.sample.deficit[0] == pytest.approx(out.s / 10.0, abs=1e-9)
+    with pytest.raises(ValueError, match="reach"):
+        InspectionReference(pts, nrm, s, ph, cfg, reach=-reach - 0.1)
+    with pytest.raises(ValueError, match="reach"):
+        InspectionReference(pts, nrm, s, ph, cfg, reach=reach[:-1])
+
+
+def test_stalls_are_per_drone_in_a_batch():
+    from wt_inspect_env.reference import BatchedReference
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=3.0, on_stall="skip"))
+    batch = BatchedReference(ref, 3)
+    for i in range(3):
+        batch.reset(i)
+    start = batch.sample.ideal_position[0].copy()
+    for _ in range(1500):
+        pos = np.stack([start, batch.sample.ideal_position[1], start])   # drone 1 keeps up
+        batch.step(DT, pos)
+    single = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=3.0, on_stall="skip"))
+    single.reset()
+    _hold_drone(single, start, 1500)
+    assert batch.stalls.tolist() == [1, 0, 1] and single.stalls == 1
+    assert batch.skipped[0] == single.skipped and batch.sample.s[0] == single._batch.sample.s[0]
+
+
+# ------------------------------------------------------------------ approach from a far start
+def test_the_approach_moves_the_pose_from_the_start_to_the_path_at_its_speed():
+    """A drone that tracks its ideal pose exactly: the pose runs the straight segment from the start
+    to the path's first pose at approach_speed (length / speed seconds), the point d_ref from it
+    along the first normal, progress 0 - then the path proper at the nominal speed."""
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(approach_speed=4.0))
+    first = ref.reset()
+    start = first.ideal_position + np.array([0.0, -15.0, 20.0])          # |offset| = 25 m
+    smp = ref.approach(start)
+    assert ref.approaching and smp.progress == 0.0
+    np.testing.assert_allclose(smp.ideal_position, start, atol=1e-12)
+    np.testing.assert_allclose(smp.point, start + (first.point - first.ideal_position), atol=1e-12)
+    np.testing.assert_array_equal(smp.normal, first.normal)
+    direction = (first.ideal_position - start) / 25.0
+    x, steps = start.copy(), 0
+    while ref.approaching:
+        prev = x
+        smp = ref.step(DT, x)
+        x = smp.ideal_position.copy()
+        steps += 1
+        assert smp.progress == 0.0 and smp.s == 0.0
+        # on the segment, moving along it at the approach speed
+        np.testing.assert_allclose(np.cross(x - start, direction), 0.0, atol=1e-9)
+        if ref.approaching:
+            assert np.linalg.norm(x - prev) == pytest.approx(4.0 * DT, rel=1e-9)
+            np.testing.assert_allclose(smp.velocity, 4.0 * direction, rtol=1e-12)
+            np.testing.assert_allclose(smp.point, x + (first.point - first.ideal_position), atol=1e-9)
+    assert abs(steps - 25.0 / (4.0 * DT)) <= 1          # 625 steps, up to the rounding of tau
+    np.testing.assert_allclose(x, first.ideal_position, atol=1e-12)
+    smp = ref.step(DT, x)                                  # the path proper: nominal speed
+    assert smp.s == pytest.approx(0.7 * DT) and np.linalg.norm(smp.velocity) == pytest.approx(0.7)
+
+
+def test_the_approach_waits_for_a_lagging_drone_and_is_skipped_when_not_needed():
+    pts, nrm, s, ph = straight_path(10.0)
+    cfg = ReferenceConfig(approach_speed=4.0, stall_time=None)
+    ref = InspectionReference(pts, nrm, s, ph, cfg)
+    first = ref.reset()
+    start = first.ideal_position + np.array([0.0, -30.0, 0.0])
+    ref.approach(start)
+    for _ in range(500):                                   # the drone stays at its start
+        smp = ref.step(DT, start)
+    lead = np.linalg.norm(smp.ideal_position - start)
+    assert cfg.stop_threshold - 0.05 <= lead <= cfg.stop_threshold + 4.0 * DT and smp.speed_factor == 0.0
+    # within stop_threshold of the first pose, after a start part-way along, or without a speed: no approach
+    ref.reset()
+    assert not ref.approach(first.ideal_position + [0.0, -1.9, 0.0]).progress and not ref.approaching
+    ref.reset(0.5)
+    ref.approach(start)
+    assert not ref.approaching
+    plain = InspectionReference(pts, nrm, s, ph)
+    plain.reset()
+    np.testing.assert_array_equal(plain.approach(start).ideal_position, first.ideal_position)
+    with pytest.raises(ValueError, match="start_position"):
+        ref.approach([0.0, 1.0])
+
+
+def test_drone_i_of_a_batch_approaches_like_a_single_drone():
+    from wt_inspect_env.reference import BatchedReference
+    pts, nrm, s, ph = straight_path(10.0)
+    cfg = ReferenceConfig(approach_speed=3.0)
+    ref = InspectionReference(pts, nrm, s, ph, cfg)
+    batch = BatchedReference(ref, 3)
+    starts = [np.array([5.0, -20.0, 110.0]), np.array([0.0, -7.5, 100.0]), np.array([-9.0, -3.0, 95.0])]
+    singles = []
+    for i, st in enumerate(starts):
+        batch.reset(i)
+        batch.approach(i, st)
+        one = InspectionReference(pts, nrm, s, ph, cfg)
+        one.reset()
+        one.approach(st)
+        singles.append(one)
+    assert batch.approaching.tolist() == [True, False, True]
+    for k in range(900):
+        pos = batch.sample.ideal_position + 0.3 * np.sin(0.01 * k)   # a drone near its pose
+        got = batch.step(DT, pos.copy())
+        for i, one in enumerate(singles):
+            want = one.step(DT, pos[i])
+            np.testing.assert_array_equal(got.ideal_position[i], want.ideal_position)
+            np.testing.assert_array_equal(got.velocity[i], want.velocity)
+
+
+def test_the_approach_follows_a_routed_polyline_at_its_speed():
+    """With a router the ideal pose runs the router's polyline (start, via points, first pose) at
+    approach_speed, turning at each via point, and the path proper starts at its end."""
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(approach_speed=4.0))
+    first = ref.reset()
+    start = first.ideal_position + np.array([0.0, -12.0, 0.0])
+    via = [start + [0.0, 0.0, 9.0], first.ideal_position + [0.0, 0.0, 9.0]]
+    route = np.stack([start, *via, first.ideal_position])           # 9 + 12 + 9 = 30 m
+    ref.approach(start, lambda a, b: route)
+    x, steps, seen = start.copy(), 0, []
+    while ref.approaching:
+        smp = ref.step(DT, x)
+        x = smp.ideal_position.copy()
+        seen.append(x)
+        steps += 1
+    assert abs(steps - 30.0 / (4.0 * DT)) <= 1
+    seen = np.array(seen)
+    # every pose lies on one of the three legs
+    d = np.min([np.linalg.norm(np.cross(seen - a, (b - a) / np.linalg.norm(b - a)), axis=1)
+                + np.maximum(0, -(seen - a) @ (b - a)) + np.maximum(0, (seen - b) @ (b - a))
+                for a, b in zip(route[:-1], route[1:])], axis=0)
+    assert d.max() < 1e-9
+    assert seen[:, 2].max() == pytest.approx(via[0][2], abs=4.0 * DT)   # it went over, not through
+    np.testing.assert_allclose(x, first.ideal_position, atol=1e-12)
+    ref.reset()
+    with pytest.raises(ValueError, match="approach route"):
+        ref.approach(start, lambda a, b: np.stack([a, a + 1.0]))     # does not end at the first pose

@@ -17,9 +17,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_the_checkout_passes_the_check():
+    """Everything but re-flying the behaviour digests (CI runs ``wt-inspect reproduce --check``
+    after the tests, which flies them; tests/test_behaviour.py checks that machinery)."""
     out = io.StringIO()
     studies = reproduce.load_manifest(ROOT / reproduce.MANIFEST)
-    assert reproduce.check(ROOT, studies, out=out) == 0, out.getvalue()
+    assert reproduce.check(ROOT, studies, out=out, fly=False) == 0, out.getvalue()
     assert len(studies) >= 30
 
 
@@ -77,6 +79,24 @@ def test_run_writes_provenance_and_check_follows_it(tmp_path, monkeypatch):
     # a second run skips nothing that is stale and reruns it
     assert cli_main(["reproduce", "--root", str(root), "--no-progress", "--only", "smw"]) == 0
     assert reproduce.check(root, studies, out=io.StringIO()) == 0
+
+
+def test_only_run_files_of_the_current_code_are_resumed(tmp_path):
+    """A study regenerated after a code change must not be rebuilt from the old code's flights:
+    run files made by other code are discarded before the commands run, the current code's kept
+    (an interrupted regeneration resumes), unreadable ones left to the commands."""
+    import numpy as np
+
+    runs = tmp_path / "study" / "rows" / "00_a" / "runs"
+    runs.mkdir(parents=True)
+    for name, code in (("old.npz", "0ld"), ("new.npz", "n3w")):
+        np.savez_compressed(runs / name, meta=np.array(json.dumps({"code": code})))
+    (runs / "broken.npz").write_bytes(b"not a run file")
+    log = io.StringIO()
+    assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", log) == 1
+    assert sorted(p.name for p in runs.iterdir()) == ["broken.npz", "new.npz"]
+    assert "discarded 1 run file(s)" in log.getvalue()
+    assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", io.StringIO()) == 0
 
 
 def test_readme_numbers_must_come_from_the_named_file(tmp_path):

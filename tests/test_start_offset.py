@@ -11,14 +11,22 @@ from wt_inspect_env.env_config import EnvConfig, check_start_offset
 SURFACE = "WindTurbineInspection-Surface-v0"
 
 
-def test_offset_moves_the_start_and_the_drone_still_faces_the_point():
+@pytest.mark.parametrize("approach", ["auto", None])
+def test_offset_moves_the_start_and_the_drone_still_faces_the_point(approach):
     base = gym.make(SURFACE).unwrapped
-    moved = gym.make(SURFACE, start_offset=[3.0, -2.0, 30.0]).unwrapped
+    moved = gym.make(SURFACE, start_offset=[3.0, -2.0, 30.0], reference_approach_speed=approach).unwrapped
     try:
         o0, i0 = base.reset(seed=0)
         o1, i1 = moved.reset(seed=0)
         np.testing.assert_allclose(o1["position"] - o0["position"], [3.0, -2.0, 30.0], atol=1e-5)
-        np.testing.assert_array_equal(i1["ideal_position"], i0["ideal_position"])
+        if approach is None:   # the first stand-off pose is the target from the start
+            np.testing.assert_array_equal(i1["ideal_position"], i0["ideal_position"])
+            assert not i1["approaching"]
+        else:                  # the approach starts where the drone does, the point carried with it
+            np.testing.assert_allclose(i1["ideal_position"], o1["position"], atol=1e-5)
+            np.testing.assert_allclose(o1["point"] - i1["ideal_position"], o0["point"] - i0["ideal_position"],
+                                       atol=1e-9)
+            assert i1["approaching"] and not i0["approaching"]
         # yaw faces the inspection point from the offset start (horizontally)
         q = moved.sim.state[0, 6:10]
         yaw = 2.0 * np.arctan2(q[2], q[3])

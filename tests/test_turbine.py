@@ -287,12 +287,14 @@ def test_bad_load_options_name_the_field(turb, tmp_path, kw, match):
 
 
 def test_env_flies_the_exported_turbine(turb, tmp_path):
-    """gym.make(..., turbine_mesh=<wt-inspect plan's turbine.stl>) builds the same mission."""
+    """gym.make(..., turbine_mesh=<wt-inspect plan's turbine.stl>) with the paper's turn builds the
+    same mission (a mesh file is not the paper turbine to the "auto" default, which lets the planner
+    choose the turns for it)."""
     import gymnasium as gym
 
     import wt_inspect_env  # noqa: F401 - registers the ids
     path = turb.export(tmp_path / "turbine.stl")
-    env = gym.make("WindTurbineInspection-v0", turbine_mesh=str(path), wind="none")
+    env = gym.make("WindTurbineInspection-v0", turbine_mesh=str(path), rotor_turn_deg=120.0, wind="none")
     ref = gym.make("WindTurbineInspection-v0", wind="none")
     try:
         env.reset(seed=0)

@@ -282,7 +282,8 @@ def _floats(text: str) -> list[float]:
     return vals
 
 
-def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
+def build_parser(prog: str = "wt-inspect ablation") -> argparse.ArgumentParser:
+    """The command line of ``wt-inspect ablation`` (also read by :mod:`wt_inspect.behaviour`)."""
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, help="output directory (results.md, results.json, ablation.png)")
     parser.add_argument("--task", default="full", choices=list(TASK_SCENARIOS),
@@ -295,6 +296,11 @@ def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
     parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--figure-format", choices=FIGURE_FORMATS, default="png",
                         help="format of the ablation figure (default png; pdf and svg are vector)")
+    return parser
+
+
+def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
+    parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:
         winds = _floats(args.winds)

@@ -1,22 +1,25 @@
-"""``wt-inspect reproduce``: rerun every committed result from one manifest, and check, without
-flying, that the committed results are what the current code makes.
+"""``wt-inspect reproduce``: rerun every committed result from one manifest, and check that the
+committed results are what the current code makes.
 
 The manifest (``results/reproduce.toml``) lists every committed study as a results folder and the
 commands that make it, run in order from the checkout's root. After a study's commands have all
-succeeded, ``FOLDER/provenance.json`` records them with the *code version* that ran them, the
-package version and the machine. The code version of a study is a hash of
-:func:`wt_inspect.evaluation.runner.code_fingerprint` (every source that can change a flight's
-outcome) and of the modules of the subcommands it runs (``wt-inspect ablation`` adds
-``wt_inspect/ablation.py``, ``wt-inspect study NAME`` its study module, ...).
+succeeded, ``FOLDER/provenance.json`` records them with the package version, the machine, the code
+version (a hash of :func:`wt_inspect.evaluation.runner.code_fingerprint` and of the subcommands'
+modules) and - for a study that flies - *behaviour digests* of its first and last run
+(:mod:`wt_inspect.behaviour`: the flown state over the first seconds, rounded).
 
-``--check`` reads only files: a study is *current* when its folder's provenance records exactly the
-manifest's commands and the current code version; otherwise it is *stale*, and a stale study must
-be named in ``results/STALE.md`` with the reason (else the check fails, as it does for a listed
-study that is current again, a committed results folder the manifest does not cover, or a number
-in the README that is not in the results file it names). Numbers in the README come from committed
-files: each table between ``<!-- numbers: results/X/results.md -->`` and ``<!-- /numbers -->``
-must consist of lines of that file, verbatim; docs pages include the files themselves
-(``--8<-- "results/..."``), which must exist.
+``--check``: a study is *current* when its folder's provenance records exactly the manifest's
+commands, all finished, and - behaviour decides, not the files - its digested runs flown again by
+the current code agree with the recorded digests (a refactor that moves code keeps a study
+current; a changed weight makes the studies that fly it stale). A study whose commands fly nothing
+(training, tuning, analyses) is current when its code version is. A stale study must be named in
+``results/STALE.md`` with the reason (else the check fails, as it does for a listed study that is
+current again, a committed results folder the manifest does not cover, or a number in the README
+that is not in the results file it names). Numbers in the README come from committed files: each
+table between ``<!-- numbers: results/X/results.md -->`` and ``<!-- /numbers -->`` must consist of
+lines of that file, verbatim (``--update-readme`` rewrites them from the files); docs pages include
+the files themselves (``--8<-- "results/..."``), which must exist. ``--record-behaviour`` gives
+studies that are current by their code version (that code made them) digests flown now.
 
 Running: studies are run in manifest order, skipping those that are current (``--force`` reruns
 them); each command resumes where it was interrupted (the commands themselves resume), and a study
@@ -26,6 +29,7 @@ whose commands did not all succeed gets no provenance. ``--only`` selects studie
 from __future__ import annotations
 
 import argparse
+import contextlib
 import hashlib
 import importlib.util
 import json
@@ -38,6 +42,9 @@ import time
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
+
+import numpy as np
 
 MANIFEST = Path("results/reproduce.toml")
 STALE_FILE = Path("results/STALE.md")
@@ -124,8 +131,12 @@ def read_provenance(root: Path, study: Study) -> dict | None:
         return None
 
 
-def staleness(root: Path, study: Study, fingerprint: str | None = None) -> str:
-    """Why ``study`` is stale ("" when it is current)."""
+def staleness(root: Path, study: Study, fingerprint: str | None = None, *, fly: bool = True,
+              progress: Callable[[str], None] | None = None) -> str:
+    """Why ``study`` is stale ("" when it is current). A study whose provenance records behaviour
+    digests (:mod:`wt_inspect.behaviour`) is current when the current code flies them again
+    (``fly``; without it they are taken as recorded); any other study when its code version is the
+    current one."""
     if not (root / study.folder).is_dir():
         return "its folder does not exist"
     if not study.commands:
@@ -137,10 +148,32 @@ def staleness(root: Path, study: Study, fingerprint: str | None = None) -> str:
         return "its recorded commands differ from the manifest's"
     if not prov.get("complete"):
         return "its commands did not all finish"
+    if prov.get("behaviour"):
+        if not fly:
+            return ""
+        from wt_inspect.behaviour import verify
+        with contextlib.chdir(root):   # the commands' relative paths (model files) are the checkout's
+            return verify(study.commands, prov["behaviour"], progress=progress)
     want = code_version(study, fingerprint)
     if prov.get("code") != want:
         return f"made by code {prov.get('code')}, the current code is {want}"
     return ""
+
+
+def record_behaviour(root: Path, study: Study, log=sys.stderr) -> bool:
+    """Fly the digested runs of ``study`` with the current code and store their digests in its
+    provenance; False (provenance untouched) if its commands fly nothing."""
+    from wt_inspect.behaviour import digested_runs, record
+    from wt_inspect_env.atomic_io import write_text_atomic
+    prov = read_provenance(root, study)
+    if prov is None or not digested_runs(study.commands):
+        return False
+    with contextlib.chdir(root):
+        prov["behaviour"] = record(study.commands,
+                                   progress=lambda r: print(f"reproduce {study.name}: digest of {r}", file=log,
+                                                            flush=True))
+    write_text_atomic(root / study.folder / PROVENANCE, json.dumps(prov, indent=1) + "\n")
+    return True
 
 
 def listed_stale(root: Path) -> dict[str, str]:
@@ -190,15 +223,60 @@ def number_problems(root: Path) -> list[str]:
     return problems
 
 
-def check(root: Path, studies: list[Study], out=sys.stdout) -> int:
-    """Print every problem (one line each) and a summary; 0 when nothing unlisted is stale."""
+def _table_after(lines: list[str], header: str) -> list[str] | None:
+    """The table of ``lines`` whose header row is ``header``: that row, its rule and its rows (the
+    first such table of the file), or None."""
+    for i, line in enumerate(lines):
+        if line.strip() == header:
+            j = i + 1
+            while j < len(lines) and lines[j].strip().startswith("|"):
+                j += 1
+            return [x.strip() for x in lines[i:j]]
+    return None
+
+
+def update_readme(root: Path) -> list[str]:
+    """Rewrite each README table between ``<!-- numbers: FILE -->`` and ``<!-- /numbers -->`` with
+    the table of FILE that has the same header row, so the README quotes what the results files
+    say now; returns the problems it could not fix (no such file, no table with that header)."""
+    readme = root / README
+    text = readme.read_text()
+    out, pos, problems = [], 0, []
+    for m in NUMBERS_OPEN.finditer(text):
+        end = text.find(NUMBERS_CLOSE, m.end())
+        src = root / m.group(1)
+        if end < 0 or not src.is_file():
+            problems.append(f"{README}: cannot refresh the numbers from {m.group(1)}")
+            continue
+        block = text[m.end():end].strip("\n").splitlines()
+        header = next((x.strip() for x in block if x.strip().startswith("|")), None)
+        table = _table_after(src.read_text().splitlines(), header) if header else None
+        if table is None:
+            problems.append(f"{README}: {m.group(1)} has no table with the header {str(header)[:60]!r}")
+            continue
+        out.append(text[pos:m.end()] + "\n" + "\n".join(table) + "\n")
+        pos = end
+    out.append(text[pos:])
+    new = "".join(out)
+    if new != text:
+        from wt_inspect_env.atomic_io import write_text_atomic
+        write_text_atomic(readme, new)
+    return problems
+
+
+def check(root: Path, studies: list[Study], out=sys.stdout, *, fly: bool = True, progress: bool = False) -> int:
+    """Print every problem (one line each) and a summary; 0 when nothing unlisted is stale.
+    ``fly``: re-fly the recorded behaviour digests (else they are taken as recorded)."""
     from wt_inspect.evaluation.runner import code_fingerprint
     fp = code_fingerprint()
     listed = listed_stale(root)
     names = {s.name for s in studies}
     problems, stale = [], []
-    for s in studies:
-        why = staleness(root, s, fp)
+    from tqdm import tqdm
+    bar = tqdm(studies, desc="check", unit="study", disable=not progress, file=sys.stderr)
+    for s in bar:
+        bar.set_postfix_str(s.name)
+        why = staleness(root, s, fp, fly=fly)
         if why:
             stale.append(s.name)
             if s.name not in listed:
@@ -235,12 +313,37 @@ def plan(studies: list[Study], jobs: int | None, backend: str | None) -> list[tu
     return out
 
 
+def discard_foreign_runs(folder: Path, fingerprint: str, log=sys.stderr) -> int:
+    """Delete the run files under ``folder`` (in any ``runs`` directory) made by other code than
+    ``fingerprint``; returns how many. The commands resume from the run files they find, so
+    without this a study regenerated after a code change would be rebuilt from flights of the old
+    code while its provenance names the new one. Files whose metadata cannot be read are left to
+    the commands (they fly such runs again)."""
+    n = 0
+    for path in sorted(folder.rglob("runs/*.npz")):
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                code = json.loads(str(data["meta"])).get("code")
+        except (OSError, ValueError, KeyError, AttributeError):
+            continue
+        if code != fingerprint:
+            path.unlink()
+            n += 1
+    if n:
+        print(f"reproduce: discarded {n} run file(s) under {folder} made by other code than {fingerprint}",
+              file=log, flush=True)
+    return n
+
+
 def run_study(root: Path, study: Study, commands: list[str], log=sys.stderr) -> bool:
-    """Run a study's commands in order from ``root``; on success write its provenance."""
+    """Run a study's commands in order from ``root`` - resuming only from run files of the current
+    code (:func:`discard_foreign_runs`); on success write its provenance."""
     from wt_inspect.cli import version
     from wt_inspect.evaluation.report import hardware
+    from wt_inspect.evaluation.runner import code_fingerprint
     from wt_inspect_env.atomic_io import write_text_atomic
     t0 = time.perf_counter()
+    discard_foreign_runs(root / study.folder, code_fingerprint(), log)
     for c in commands:
         print(f"reproduce {study.name}: {c}", file=log, flush=True)
         res = subprocess.run([sys.executable, "-m", "wt_inspect.cli", *shlex.split(c)[1:]], cwd=root)
@@ -252,15 +355,44 @@ def run_study(root: Path, study: Study, commands: list[str], log=sys.stderr) -> 
             "python": platform.python_version(), "wall_time_s": round(time.perf_counter() - t0, 1),
             "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "complete": True}
     write_text_atomic(root / study.folder / PROVENANCE, json.dumps(prov, indent=1) + "\n")
+    record_behaviour(root, study, log)
     return True
+
+
+def _record_current(root: Path, studies: list[Study], *, force: bool) -> int:
+    """``--record-behaviour``: give the studies that are current by their code version (that
+    code made their files) behaviour digests flown now; ``force`` replaces existing digests."""
+    from wt_inspect.evaluation.runner import code_fingerprint
+    fp = code_fingerprint()
+    n = 0
+    for s in studies:
+        prov = read_provenance(root, s) or {}
+        if prov.get("behaviour") and not force:
+            continue
+        if prov.get("behaviour"):
+            prov = {k: v for k, v in prov.items() if k != "behaviour"}
+        why = "" if prov.get("code") == code_version(s, fp) and prov.get("complete") and \
+            list(prov.get("commands", [])) == list(s.commands) else "not current by its code version"
+        if why:
+            print(f"reproduce {s.name}: skipped, {why}", file=sys.stderr)
+            continue
+        if record_behaviour(root, s):
+            n += 1
+    print(f"behaviour digests recorded for {n} stud{'y' if n == 1 else 'ies'}")
+    return 0
 
 
 def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
     ap = argparse.ArgumentParser(prog=prog, description="Rerun every committed result from the manifest "
                                  f"({MANIFEST}), or check without flying that each is current.")
     mode = ap.add_mutually_exclusive_group()
-    mode.add_argument("--check", action="store_true", help="verify provenance and the README's numbers; no flight")
+    mode.add_argument("--check", action="store_true",
+                      help="verify provenance and the README's numbers; re-fly each study's behaviour digests")
+    mode.add_argument("--record-behaviour", action="store_true",
+                      help="record behaviour digests for studies that are current by their code version")
     mode.add_argument("--list", action="store_true", help="print the plan: every study, its state and commands")
+    mode.add_argument("--update-readme", action="store_true",
+                      help="rewrite the README's number tables from the results files they name")
     ap.add_argument("--only", default=None, help="comma-separated study names")
     ap.add_argument("--jobs", type=int, default=None, help="passed to the commands that take --jobs")
     ap.add_argument("--backend", choices=("local", "ray"), default=None, help="passed to the evaluations")
@@ -283,14 +415,24 @@ def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
             ap.error(f"unknown study {unknown[0]!r}; known: {', '.join(s.name for s in studies)}")
         studies = [s for s in studies if s.name in wanted]
     if args.check:
-        return check(root, studies)
+        return check(root, studies, progress=not args.no_progress)
+    if args.record_behaviour:
+        return _record_current(root, studies, force=args.force)
+    if args.update_readme:
+        problems = update_readme(root)
+        for line in problems:
+            print(line, file=sys.stderr)
+        return 1 if problems else 0
     steps = plan(studies, args.jobs, args.backend)
     if args.list:
         from wt_inspect.evaluation.runner import code_fingerprint
         fp = code_fingerprint()
         for s, cmds in steps:
-            why = staleness(root, s, fp)
-            print(f"{s.name}  ({s.folder}; {'stale: ' + why if why else 'current'})")
+            why = staleness(root, s, fp, fly=False)
+            state = "stale: " + why if why else (
+                "behaviour recorded (--check re-flies it)" if (read_provenance(root, s) or {}).get("behaviour")
+                else "current")
+            print(f"{s.name}  ({s.folder}; {state})")
             for c in cmds:
                 print(f"    {c}")
             if s.missing:

@@ -226,6 +226,9 @@ class WindTurbineInspectionEnv(gym.Env):
             "waiting_for_phase_change": bool(s.waiting_for_phase_change[0]),
             "ideal_position": s.ideal_position[0].copy(),
             "wind": w.sim.last_wind[0].copy(),
+            "stalls": int(w.reference.stalls[0]),
+            "skipped_m": float(w.reference.skipped[0]),
+            "approaching": bool(w.reference.approaching[0]),
         }
         rz = w.randomization[0]
         if rz is not None:

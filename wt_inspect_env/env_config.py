@@ -8,6 +8,7 @@ a ``ValueError`` listing the valid ones.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Mapping
 
@@ -15,9 +16,11 @@ import numpy as np
 
 from .camera import CameraConfig
 from .flight_core import INTEGRATORS
+from .planner.config import CLEARANCE_BRAKE, D_MIN_RATIO, PAPER_ROTOR_TURN_DEG
 from .quadrotor import QuadrotorParams, get_preset
 from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
+from .reference import ON_STALL as REFERENCE_ON_STALL
 from .turbine import TurbineSpec
 from .validation import (
     check_array,
@@ -30,6 +33,7 @@ from .validation import (
 )
 
 TASKS = ("full", "blade", "surface")
+
 OBS_MODES = ("state", "rgb", "depth", "rgbd")
 # The options ``reset(options=...)`` accepts for one episode (validated as EnvConfig fields).
 RESET_OPTIONS = ("wind", "start_offset", "start_noise", "start_progress", "randomization")
@@ -115,9 +119,12 @@ class EnvConfig:
     turbine: a :class:`TurbineSpec` or dict of its fields (``{"preset": "nrel-5mw"}`` for a named
         turbine); ``turbine_mesh``: a mesh file to load instead, or a dict of
         :class:`~wt_inspect_env.turbine.MeshLoadOptions` (``path``, ``unit``, ``up_axis``, ...).
-    rotor_turn_deg: the rotor turn between phase 1 and 2 (the paper's 120 deg); ``None``: the
-        planner chooses the rotor positions (none, one or two turns) with the least flight, which
-        any rotor azimuth needs (``mission.turbines`` then holds one turbine per position).
+    rotor_turn_deg: the rotor turn between phase 1 and 2 [deg]; ``None``: the planner chooses the
+        rotor positions (none, one or two turns) with the least flight, which any rotor azimuth
+        needs (``mission.turbines`` then holds one turbine per position); ``"auto"`` (default): the
+        paper's 120 deg on the paper's turbine (the default ``TurbineSpec``), the planner's choice on
+        every other turbine or mesh - a fixed 120 deg turn leaves surfaces of other turbines
+        uninspectable (the NREL 5-MW's blade roots beside its hub, a rotor stopped at another azimuth).
     wind: a wind spec for :func:`~wt_inspect_env.wind.make_wind` (default: the paper's gust, 4 m/s
         along y, period 10 s, std 0.5 m/s); ``"none"`` for still air.
     drone: preset name or :class:`QuadrotorParams`.
@@ -128,6 +135,18 @@ class EnvConfig:
         and 2 standoff / 7 (1 m and 2 m at the paper's 7 m; 7 cm and 14 cm for the 0.5 m lab
         stand-off, where fixed metres would let the point run away from a drone that is already
         blown out of its 0.1 m band).
+    d_min: the flight's minimum distance to the structure [m]; default :data:`D_MIN_RATIO` x standoff
+        (3 m at 7 m): what the MPCs' clearance constraint keeps, what the harness counts the time
+        below, and what the closed-loop reference allows for where an ideal pose lies closer.
+    reference_stall_time / reference_on_stall: seconds without progress after which the closed-loop
+        reference stalls (``None``: never), and what then: ``"end"`` the episode (truncated,
+        ``info["stalls"]`` 1; the harness records ``reference_stall``) or ``"skip"`` on without the
+        drone (see :mod:`.reference`).
+    reference_approach_speed: from a start farther than ``reference_stop`` from the first stand-off
+        pose, the reference first approaches from the start at this speed [m/s] (see
+        :mod:`.reference`); ``"auto"`` (default): the braking bound sqrt(2 a (standoff - d_min)),
+        a = :data:`~wt_inspect_env.planner.config.CLEARANCE_BRAKE` (4.9 m/s at the paper's 7 m / 3 m);
+        ``None``: no approach (the first pose is the target from the start).
     safety_margin: SM band [m]. camera_hz: coverage frames per second (a real inspection camera
         shoots a few frames per second; 10 Hz keeps the env fast). ctrl_hz / physics_hz: command and
         physics rates. integrator: ``"compiled"`` (free flight in the compiled flight core, PyBullet
@@ -182,10 +201,14 @@ class EnvConfig:
     standoff: float = 7.0
     reference_lag: float | None = None
     reference_stop: float | None = None
+    reference_stall_time: float | None = 20.0
+    reference_on_stall: str = "end"
+    reference_approach_speed: float | str | None = "auto"
+    d_min: float | None = None
     safety_margin: float = 1.0
     planner_spacing: float = 0.1
     planner: Any = None
-    rotor_turn_deg: float | None = 120.0
+    rotor_turn_deg: float | str | None = "auto"
     blade_index: int = 0
     surface_index: int = 0
     ctrl_hz: float = 100.0
@@ -233,9 +256,34 @@ class EnvConfig:
         if self.reference_stop <= self.reference_lag:
             raise ValueError(f"reference_stop must exceed reference_lag ({self.reference_lag}), "
                              f"got {self.reference_stop!r}")
+        if self.reference_stall_time is not None:
+            check_positive("reference_stall_time", self.reference_stall_time)
+        check_choice("reference_on_stall", self.reference_on_stall, REFERENCE_ON_STALL)
+        if self.d_min is None:
+            put("d_min", D_MIN_RATIO * self.standoff)
+        check_positive("d_min", self.d_min)
+        if self.d_min >= self.standoff:
+            raise ValueError(f"d_min must be below standoff ({self.standoff}), got {self.d_min!r}")
+        if isinstance(self.reference_approach_speed, str):
+            if self.reference_approach_speed != "auto":
+                raise ValueError("reference_approach_speed must be a number, None or 'auto', "
+                                 f"got {self.reference_approach_speed!r}")
+            put("reference_approach_speed", math.sqrt(2.0 * CLEARANCE_BRAKE * (self.standoff - self.d_min)))
+        elif self.reference_approach_speed is not None:
+            if isinstance(self.reference_approach_speed, bool):
+                raise ValueError("reference_approach_speed must be a number, None or 'auto', "
+                                 f"got {self.reference_approach_speed!r}")
+            check_positive("reference_approach_speed", self.reference_approach_speed)
         check_positive("safety_margin", self.safety_margin)
         check_positive("planner_spacing", self.planner_spacing)
-        if self.rotor_turn_deg is not None:
+        if isinstance(self.rotor_turn_deg, str):
+            if self.rotor_turn_deg != "auto":
+                raise ValueError(f"rotor_turn_deg must be a number, None or 'auto', got {self.rotor_turn_deg!r}")
+            paper = self.turbine_mesh is None and self.turbine == TurbineSpec()
+            put("rotor_turn_deg", PAPER_ROTOR_TURN_DEG if paper else None)
+        elif self.rotor_turn_deg is not None:
+            if isinstance(self.rotor_turn_deg, bool):
+                raise ValueError(f"rotor_turn_deg must be a number, None or 'auto', got {self.rotor_turn_deg!r}")
             check_finite("rotor_turn_deg", self.rotor_turn_deg)
         for name in ("blade_index", "surface_index"):
             v = getattr(self, name)

@@ -25,6 +25,8 @@ import trimesh
 
 from .env_config import EnvConfig
 from .planner import InspectionPlan, PlannerConfig, plan_inspection
+from .planner.clearance import DistanceField
+from .reference import standoff_poses
 from .turbine import TurbineMesh, build_turbine, load_turbine_mesh
 from .validation import check_unknown_options
 
@@ -52,6 +54,18 @@ class Mission:
         hi = np.max([b[1] for b in pts], axis=0) + margin
         lo[2] = -1.0
         return lo, hi
+
+    def clearance_shortfall(self, standoff: float, d_min: float) -> np.ndarray:
+        """Per path sample, how far inside ``d_min`` of its phase's turbine the ideal stand-off pose
+        lies (0 where it clears d_min) [m]: the distance the clearance constraint keeps the drone
+        from that pose, which the closed-loop reference allows for (see :mod:`.reference`)."""
+        ideal = standoff_poses(self.points, self.normals, standoff)
+        out = np.zeros(len(ideal))
+        for ph in np.unique(self.phase):
+            sel = self.phase == ph
+            field = DistanceField(self.turbines[int(ph) - 1].all_triangles)
+            out[sel] = d_min - field.distance(ideal[sel], d_min)
+        return out
 
 
 def _turbine(cfg: EnvConfig) -> TurbineMesh:

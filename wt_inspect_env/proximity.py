@@ -12,12 +12,21 @@ loaded tower is not missed because its centroid is far away.
 
 :class:`TurbineProximity` is the geometry of a whole mission: one :class:`MeshProximity` per rotor
 position (the environment swaps the collision mesh when the rotor turns), and which one applies.
-A policy does not see the phase; it sees the inspection point, which lies on the surface being
-inspected - so the active rotor position is the one whose mesh the point lies on. The choice only
+A policy does not see the phase. It sees the mission's progress, and given where each later
+phase begins on that scale (``phase_starts``, from the environment's reference) the active rotor
+position follows from it exactly - the environment swaps the collision mesh at the first sample of
+a phase-change hold, when the progress reaches the end of the run. Without ``phase_starts`` (a
+mission alone, the PX4 geofence) it falls back to the inspection point: the next rotor position
+becomes active once the point lies on its mesh (within ``on_mesh``) and off the current one (by
+more than ``switch_margin``). The point alone is ambiguous on transits, whose points are
+interpolated between surfaces and lie on neither mesh - a transit point nearer the next
+position's blades once switched an MPC to the turned rotor in mid-phase, and the blade it then
+kept clear of, 1 m from the ideal pose, held the drone until the reference stalled. The choice only
 moves forward (phases are flown in order) and is reset with the policy.
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 import numpy as np
@@ -120,11 +129,21 @@ class TurbineProximity:
     ``switch_margin`` m); :meth:`reset` returns to the first.
     """
 
-    def __init__(self, meshes: Sequence[Any], candidates: int = 12, switch_margin: float = 0.5) -> None:
+    def __init__(self, meshes: Sequence[Any], candidates: int = 12, switch_margin: float = 0.5,
+                 phase_starts: Sequence[float] | None = None, on_mesh: float = 0.05) -> None:
         if isinstance(meshes, (str, bytes)) or not isinstance(meshes, Sequence) or not meshes:
             raise ValueError(f"meshes must be a non-empty sequence of triangle meshes, got {meshes!r}")
         self.phases = tuple(MeshProximity(getattr(m, "triangles", m), candidates) for m in meshes)
         self.switch_margin = float(switch_margin)
+        self.on_mesh = float(on_mesh)
+        self._starts: np.ndarray | None = None
+        if phase_starts is not None:
+            starts = np.asarray(phase_starts, dtype=np.float64).reshape(-1)
+            if len(starts) != len(self.phases) - 1 or not np.all(np.isfinite(starts)) or np.any(np.diff(starts) < 0):
+                raise ValueError(f"phase_starts must hold {len(self.phases) - 1} non-decreasing progress values "
+                                 f"(one per later rotor position), got {starts.tolist()}")
+            # the observation's progress is float32: compare on that grid, a hair early
+            self._starts = starts.astype(np.float32).astype(np.float64) - 1e-6
         self.index = 0
         self._checked: np.ndarray | None = None   # the point of the last look-up (the point moves slowly)
 
@@ -134,6 +153,13 @@ class TurbineProximity:
         geometry the simulator collides the drone with in each phase."""
         return cls([t.mesh for t in mission.turbines], **options)
 
+    @classmethod
+    def from_env(cls, env: Any, **options: Any) -> "TurbineProximity":
+        """:meth:`from_mission` of an environment (single or vector), with the progress at which
+        each of its later phases begins, so that the active rotor position follows the progress."""
+        u = getattr(env, "unwrapped", env)
+        return cls.from_mission(u.mission, phase_starts=u.world.reference.phase_starts, **options)
+
     def reset(self) -> None:
         self.index = 0
         self._checked = None
@@ -142,9 +168,14 @@ class TurbineProximity:
     def active(self) -> MeshProximity:
         return self.phases[self.index]
 
-    def update(self, point: Any) -> int:
-        """Advance to the next rotor position when ``point`` lies on its mesh rather than on the
-        current one; returns the active index."""
+    def update(self, point: Any, progress: float | None = None) -> int:
+        """Advance to the rotor position of ``progress`` (with ``phase_starts``), else to the next
+        one when ``point`` lies on its mesh rather than on the current one; returns the active
+        index."""
+        if self._starts is not None and progress is not None and math.isfinite(float(progress)):
+            target = int(np.searchsorted(self._starts, float(progress), side="right"))
+            self.index = max(self.index, min(target, len(self.phases) - 1))
+            return self.index
         if self.index + 1 < len(self.phases):
             p = np.asarray(point, dtype=np.float64).reshape(1, 3)
             if self._checked is not None and float(np.abs(p - self._checked).max()) < 0.25 * self.switch_margin:
@@ -152,7 +183,7 @@ class TurbineProximity:
             self._checked = p
             here = self.phases[self.index].distance(p)[0]
             nxt = self.phases[self.index + 1].distance(p)[0]
-            if nxt + self.switch_margin < here:
+            if nxt <= self.on_mesh and nxt + self.switch_margin < here:
                 self.index += 1
         return self.index
 

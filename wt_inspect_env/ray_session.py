@@ -5,6 +5,8 @@ from __future__ import annotations
 import socket
 from typing import Any
 
+from . import ray_reaper
+
 
 def import_ray() -> Any:
     try:
@@ -50,7 +52,12 @@ def init_ray(address: str | None = None, num_cpus: int | None = None, *, log_to_
         if address:
             ray.init(address=address, **kwargs)
         else:
+            # the processes this call starts are the private instance's: a reaper removes what is
+            # left of them once this process is gone, however it ends (see ray_reaper)
+            reaper = ray_reaper.Reaper()
+            reaper.start()
             ray.init(address="local", num_cpus=num_cpus, **kwargs)
+            reaper.started()
     except ConnectionError as exc:
         raise ValueError(f"address {address!r}: no Ray cluster to connect to there ({exc}); "
                          "start one with `ray start --head` or leave the address out for a local one") from None

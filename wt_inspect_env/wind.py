@@ -517,12 +517,6 @@ class WindBatch:
         return out
 
 
-def wind_velocities(fields: "list[WindField]", times: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    """(K, 3) velocities of K fields, field ``j`` at its own time ``times[j]`` and position
-    ``positions[j]`` (a one-off :class:`WindBatch`)."""
-    return WindBatch(fields)(times, positions)
-
-
 def make_wind(spec: "WindField | Callable | Mapping[str, Any] | str | None") -> WindField:
     """Build a wind field from a spec.
 

@@ -127,8 +127,13 @@ class InspectionWorld:
         ref = InspectionReference(mission.points, mission.normals, mission.s, mission.phase,
                                   ReferenceConfig(speed=cfg.reference_speed, mode=cfg.reference_mode,
                                                   standoff=cfg.standoff, lag_threshold=cfg.reference_lag,
-                                                  stop_threshold=cfg.reference_stop))
+                                                  stop_threshold=cfg.reference_stop,
+                                                  stall_time=cfg.reference_stall_time,
+                                                  on_stall=cfg.reference_on_stall,
+                                                  approach_speed=cfg.reference_approach_speed),
+                                  reach=mission.clearance_shortfall(cfg.standoff, cfg.d_min))
         self.reference = BatchedReference(ref, n)
+        self._router = None
         self.time_limit = cfg.time_limit_s or (1.5 * ref.nominal_duration + 30.0)
         lo, hi = mission.working_volume(cfg.working_margin)
         self._vol_base = (lo, hi)
@@ -198,6 +203,16 @@ class InspectionWorld:
                              np.zeros(len(idx), dtype=bool), self.last_new[idx], self.last_visible[idx],
                              np.ones(len(idx), dtype=bool))
 
+    def _approach_router(self, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+        """The approach route from a far start (built on the first one: most episodes start on the
+        path): d_min clear of the first rotor position's whole mesh and the ground."""
+        if self._router is None:
+            from .planner.approach import ApproachRouter
+            turbine = self.mission.turbines[0]
+            self._router = ApproachRouter(turbine.all_triangles, turbine.rotor_axis, self.config.d_min,
+                                          self.config.standoff)
+        return self._router(start, goal)
+
     def _reset_drone(self, i: int) -> None:
         rng, ep = self.rng(i), self.episode[i]
         self.winds[i].reset(int(rng.integers(2**63 - 1)))
@@ -219,6 +234,9 @@ class InspectionWorld:
             self._commands[i] = deque()
         self._noise_drones = [j for j, d in enumerate(self.randomization) if d is not None and d.has_noise]
         self._latency_drones = [j for j, d in enumerate(self.randomization) if d is not None and d.latency_steps]
+        if self.reference.approach(i, state[0:3], self._approach_router):   # a far start: face the point it carries
+            a = self.reference.sample.point[i] - state[0:3]
+            state[6:10] = yaw_to_quat(math.atan2(a[1], a[0]))
         self.volume_lo[i], self.volume_hi[i] = grow_to_start(*self._vol_base, state[0:3], self.config.working_margin)
         self.sim.reset_drone(i, state)
         self._reset_state[i] = state
@@ -338,7 +356,8 @@ class InspectionWorld:
         newly_done = sample.done & np.isnan(self.done_time)
         self.done_time[newly_done] = t[newly_done]
         complete = ~np.isnan(self.done_time) & (t >= self.done_time + cfg.end_hold_s - 1e-9)
-        truncated = ~terminated & (complete | (t >= self.time_limit - 1e-9))
+        stalled = (self.reference.stalls > 0) & (cfg.reference_on_stall == "end")
+        truncated = ~terminated & (complete | (t >= self.time_limit - 1e-9) | stalled)
         obs = self.observations(~finite)
         return StepResult(obs, reward, terms, code, terminated, truncated, complete, finite)
 

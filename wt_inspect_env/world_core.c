@@ -9,7 +9,7 @@
 #include <math.h>
 #include <stdint.h>
 
-int64_t wt_world_abi_version(void) { return 1; }
+int64_t wt_world_abi_version(void) { return 3; }
 
 /* NumPy's maximum / minimum: NaN in, NaN out (C's fmax/fmin drop NaN). */
 static double np_max(double a, double b) { return (isnan(a) || isnan(b)) ? NAN : (a > b ? a : b); }
@@ -32,7 +32,16 @@ typedef struct {
     const double *hdir;          /* per sample, 3 */
     double total_length, speed, stop, inv_band, standoff, hold_limit;   /* hold_limit NaN: none */
     int64_t closed;
+    const double *reach;         /* per sample: how far short of the ideal pose the clearance stops the drone */
+    double lag_threshold, stall_time;   /* stall_time NaN: no stall detection */
+    int64_t stall_skip;          /* on a stall: 1 move on without the drone, 0 end the episode (the world) */
+    double approach_speed;       /* speed of the approach from a far start [m/s] */
 } RefPath;
+
+/* A drone counts as stalled while its point advances at less than this share of the nominal speed. */
+/* Vertices of an approach route at most (start, two detour via points, the first pose). */
+#define APPROACH_MAX 4
+#define STALL_SIGMA 0.1
 
 typedef struct {
     /* per-drone reference state */
@@ -41,12 +50,19 @@ typedef struct {
     double *point, *normal, *velocity, *ideal; int64_t *phase; double *progress;
     uint8_t *s_done, *waiting, *hold_started, *phase_changed;
     double *s, *speed_factor, *lag, *s_time;
+    /* stalls: seconds without progress, skipping now, stalls so far, tau skipped, first sample of a skip,
+       the current sample's clearance shortfall */
+    double *stalled_for; uint8_t *skipping; int64_t *stalls; double *skipped; uint8_t *s_stalled; double *deficit;
+    /* the approach from a far start: its length (0: none), its route - up to APPROACH_MAX vertices
+       (x, y, z) from the start pose to the path's first ideal pose - and the route's vertex count per
+       drone; while the drone's tau is negative its ideal pose lies on the route, -tau from its end */
+    double *approach_len, *approach_pts; int64_t *approach_nv;
 } RefState;
 
 static void ref_sample(const RefPath *P, RefState *S, int64_t i, double sigma, int hold_started,
-                       int phase_changed, double lag) {
+                       int phase_changed, double lag, int stalled) {
     int64_t r = S->run[i], start = P->run_start[r], cnt = P->run_count[r], k = 0;
-    double t = S->tau[i], g[10];
+    double t = S->tau[i], g[10], frac = 0.0;
     if (cnt == 1) {
         for (int j = 0; j < 10; ++j) g[j] = P->geom[10 * start + j];
     } else {
@@ -60,13 +76,16 @@ static void ref_sample(const RefPath *P, RefState *S, int64_t i, double sigma, i
         k = lo - 1;
         if (k < 0) k = 0;
         if (k > cnt - 2) k = cnt - 2;
-        double dk = P->dtau[start + k], frac;
+        double dk = P->dtau[start + k];
         if (dk <= 0.0) frac = 0.0;
         else frac = np_min(1.0, np_max(0.0, (t - tt[k]) / dk));
         const double *g0 = P->geom + 10 * (start + k), *g1 = g0 + 10;
         for (int j = 0; j < 10; ++j) g[j] = g0[j] + frac * (g1[j] - g0[j]);
     }
     int64_t row = start + k;
+    if (P->reach == 0) S->deficit[i] = 0.0;
+    else if (cnt == 1) S->deficit[i] = P->reach[row];
+    else S->deficit[i] = P->reach[row] + frac * (P->reach[row + 1] - P->reach[row]);
     double nn = sqrt(g[3] * g[3] + g[4] * g[4] + g[5] * g[5]);
     double *nrm = S->normal + 3 * i;
     if (nn > 1e-9) { nrm[0] = g[3] / nn; nrm[1] = g[4] / nn; nrm[2] = g[5] / nn; }
@@ -80,15 +99,44 @@ static void ref_sample(const RefPath *P, RefState *S, int64_t i, double sigma, i
     id[0] = g[0] + d * hx; id[1] = g[1] + d * hy; id[2] = g[2];
     S->phase[i] = P->run_phase[r];
     S->s[i] = g[9];
-    int moving = !(S->holding[i] || S->done[i]) && cnt > 1;
+    double A = S->approach_len[i], dir[3] = {0.0, 0.0, 0.0};
+    int approaching = t < 0.0 && A > 0.0;
+    if (approaching) {
+        /* the ideal pose -t from the end of the route (start pose -> via points -> the path's first
+           ideal pose), the point carried along with it; dir: the unit direction of travel */
+        const double *V = S->approach_pts + 3 * APPROACH_MAX * i;
+        int64_t nv = S->approach_nv[i];
+        double u = A + t, acc = 0.0, seg = 0.0;   /* u: route length flown from the start */
+        int64_t j = 0;
+        for (j = 0; j < nv - 1; ++j) {
+            const double *v0 = V + 3 * j, *v1 = v0 + 3;
+            seg = sqrt((v1[0] - v0[0]) * (v1[0] - v0[0]) + (v1[1] - v0[1]) * (v1[1] - v0[1])
+                       + (v1[2] - v0[2]) * (v1[2] - v0[2]));
+            if (u <= acc + seg || j == nv - 2) break;
+            acc += seg;
+        }
+        const double *v0 = V + 3 * j, *v1 = v0 + 3;
+        double w = seg > 0.0 ? np_min(1.0, np_max(0.0, (u - acc) / seg)) : 1.0;
+        for (int c = 0; c < 3; ++c) {
+            double target = v0[c] + w * (v1[c] - v0[c]);
+            dir[c] = seg > 0.0 ? (v1[c] - v0[c]) / seg : 0.0;
+            pt[c] += target - id[c];
+            id[c] = target;
+        }
+        S->deficit[i] = 0.0;
+    }
+    int moving = !(S->holding[i] || S->done[i]) && (cnt > 1 || approaching);
     S->speed_factor[i] = moving ? sigma : 0.0;
-    if (moving && sigma > 0.0) {
+    if (moving && sigma > 0.0 && approaching) {
+        double f = sigma * P->approach_speed;
+        for (int j = 0; j < 3; ++j) v[j] = f * dir[j];
+    } else if (moving && sigma > 0.0) {
         double f = sigma * P->speed;
         for (int j = 0; j < 3; ++j) v[j] = f * P->dp_dtau[3 * row + j];
     } else {
         v[0] = v[1] = v[2] = 0.0;
     }
-    double done_len = P->run_offset[r] + t;
+    double done_len = P->run_offset[r] + (t > 0.0 ? t : 0.0);
     if (P->total_length > 0) S->progress[i] = np_min(1.0, done_len / P->total_length);
     else S->progress[i] = S->done[i] ? 1.0 : 0.0;
     S->s_done[i] = S->done[i];
@@ -97,50 +145,82 @@ static void ref_sample(const RefPath *P, RefState *S, int64_t i, double sigma, i
     S->phase_changed[i] = (uint8_t)phase_changed;
     S->lag[i] = lag;
     S->s_time[i] = S->time[i];
+    S->s_stalled[i] = (uint8_t)stalled;
 }
 
 /* The samples of drones idx (after a reset): no advance, no flags, lag unknown. */
 void wt_ref_sample(const RefPath *P, RefState *S, int64_t m, const int64_t *idx) {
-    for (int64_t j = 0; j < m; ++j) ref_sample(P, S, idx[j], 0.0, 0, 0, NAN);
+    for (int64_t j = 0; j < m; ++j) ref_sample(P, S, idx[j], 0.0, 0, 0, NAN, 0);
 }
 
+/* One drone's step. Closed loop, the point's speed depends on the drone's distance to the ideal pose
+ * less the clearance shortfall there (where the ideal pose lies closer to the structure than d_min, the
+ * drone can come no nearer than that shortfall, and waiting for it would wait for ever). A drone whose
+ * point makes no progress (sigma < STALL_SIGMA) for stall_time seconds stalls, and the stall is counted;
+ * with stall_skip its point then moves at the nominal speed, whatever the drone does, until the drone is
+ * back within lag_threshold of the ideal pose (or the run ends), the tau so skipped summed; without, the
+ * world ends the episode. */
 static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, const double *x) {
-    {
-        const double *q = S->ideal + 3 * i;
-        double d0 = x[0] - q[0], d1 = x[1] - q[1], d2 = x[2] - q[2];
-        double lag = sqrt(d0 * d0 + d1 * d1 + d2 * d2);
-        S->time[i] += dt;
-        double sigma = 0.0;
-        int hs = 0, pc = 0;
-        if (S->holding[i] && !S->done[i]) {
-            S->hold_elapsed[i] += dt;
-            int due = S->release[i] || (!isnan(P->hold_limit) && S->hold_elapsed[i] >= P->hold_limit - 1e-12);
-            if (due) {
-                S->holding[i] = 0;
-                S->release[i] = 0;
-                S->run[i] += 1;
-                S->tau[i] = 0.0;
-                pc = 1;
-            }
-        } else if (!S->holding[i] && !S->done[i]) {
-            double sm = 1.0;
-            if (P->closed) sm = sqrt(np_min(1.0, np_max(0.0, (P->stop - lag) * P->inv_band)));
-            sigma = sm;
-            S->tau[i] += sm * P->speed * dt;
-            double L = P->run_length[S->run[i]];
-            if (S->tau[i] >= L) {
-                S->tau[i] = L;
-                if (S->run[i] == P->n_runs - 1) {
-                    S->done[i] = 1;
+    const double *q = S->ideal + 3 * i;
+    double d0 = x[0] - q[0], d1 = x[1] - q[1], d2 = x[2] - q[2];
+    double lag = sqrt(d0 * d0 + d1 * d1 + d2 * d2);
+    S->time[i] += dt;
+    double sigma = 0.0;
+    int hs = 0, pc = 0, st = 0;
+    if (S->holding[i] && !S->done[i]) {
+        S->hold_elapsed[i] += dt;
+        int due = S->release[i] || (!isnan(P->hold_limit) && S->hold_elapsed[i] >= P->hold_limit - 1e-12);
+        if (due) {
+            S->holding[i] = 0;
+            S->release[i] = 0;
+            S->run[i] += 1;
+            S->tau[i] = 0.0;
+            pc = 1;
+        }
+    } else if (!S->holding[i] && !S->done[i]) {
+        double sm = 1.0;
+        if (P->closed) {
+            double e = lag - S->deficit[i];
+            if (e < 0.0) e = 0.0;
+            sm = sqrt(np_min(1.0, np_max(0.0, (P->stop - e) * P->inv_band)));
+            if (!isnan(P->stall_time) && (P->stall_skip || S->stalls[i] == 0)) {   /* "end": one stall ends it */
+                if (S->skipping[i]) {
+                    if (e <= P->lag_threshold) S->skipping[i] = 0;
+                    else sm = 1.0;
                 } else {
-                    S->holding[i] = 1;
-                    S->hold_elapsed[i] = 0.0;
-                    hs = 1;
+                    S->stalled_for[i] = sm < STALL_SIGMA ? S->stalled_for[i] + dt : 0.0;
+                    if (S->stalled_for[i] >= P->stall_time - 1e-12) {
+                        S->stalls[i] += 1;
+                        S->stalled_for[i] = 0.0;
+                        st = 1;
+                        if (P->stall_skip) { S->skipping[i] = 1; sm = 1.0; }
+                    }
                 }
             }
         }
-        ref_sample(P, S, i, sigma, hs, pc, lag);
+        sigma = sm;
+        double tau0 = S->tau[i];
+        if (tau0 < 0.0) {   /* approaching: the segment at its own speed, up to the path's start */
+            S->tau[i] += sm * P->approach_speed * dt;
+            if (S->tau[i] > 0.0) S->tau[i] = 0.0;
+        } else {
+            S->tau[i] += sm * P->speed * dt;
+        }
+        double L = P->run_length[S->run[i]];
+        if (S->tau[i] >= L) {
+            S->tau[i] = L;
+            if (S->run[i] == P->n_runs - 1) {
+                S->done[i] = 1;
+            } else {
+                S->holding[i] = 1;
+                S->hold_elapsed[i] = 0.0;
+                hs = 1;
+            }
+        }
+        if (S->skipping[i]) S->skipped[i] += S->tau[i] - tau0;
+        if (hs || S->done[i]) { S->skipping[i] = 0; S->stalled_for[i] = 0.0; }
     }
+    ref_sample(P, S, i, sigma, hs, pc, lag, st);
 }
 
 /* One control step of every drone's reference given the drone positions (n, 3). */
@@ -467,7 +547,8 @@ void wt_world_finish(WorldStep *W) {
         if (R->s_done[i] && isnan(W->done_time[i])) W->done_time[i] = t;
         int complete = !isnan(W->done_time[i]) && t >= W->done_time[i] + W->end_hold - 1e-9;
         W->complete[i] = (uint8_t)complete;
-        W->truncated[i] = !W->terminated[i] && (complete || t >= W->time_limit - 1e-9);
+        int stalled = R->stalls[i] > 0 && !W->path->stall_skip;
+        W->truncated[i] = !W->terminated[i] && (complete || t >= W->time_limit - 1e-9 || stalled);
         double cov = (double)W->n_seen[i] / (double)W->weights->n_triangles;
         uint8_t safe = !fin;
         wt_observations(1, s, W->rates + 3 * i, R->point + 3 * i, R->normal + 3 * i, R->velocity + 3 * i, &cov,

@@ -24,7 +24,7 @@ import numpy as np
 
 from .native_cache import load_c_source
 
-_ABI = 1
+_ABI = 3
 _LOCK = threading.Lock()
 _D, _P, _I = ctypes.c_double, ctypes.c_void_p, ctypes.c_int64
 
@@ -38,14 +38,16 @@ class RefPath(ctypes.Structure):
     _fields_ = [("n_runs", _I), ("run_start", _P), ("run_count", _P), ("run_length", _P), ("run_offset", _P),
                 ("run_phase", _P), ("tau", _P), ("dtau", _P), ("geom", _P), ("dp_dtau", _P), ("normals", _P),
                 ("hdir", _P), ("total_length", _D), ("speed", _D), ("stop", _D), ("inv_band", _D),
-                ("standoff", _D), ("hold_limit", _D), ("closed", _I)]
+                ("standoff", _D), ("hold_limit", _D), ("closed", _I), ("reach", _P), ("lag_threshold", _D),
+                ("stall_time", _D), ("stall_skip", _I), ("approach_speed", _D)]
 
 
 class RefState(ctypes.Structure):
     _fields_ = [(name, _P) for name in ("run", "tau", "time", "hold_elapsed", "holding", "done", "release",
                                         "point", "normal", "velocity", "ideal", "phase", "progress", "s_done",
                                         "waiting", "hold_started", "phase_changed", "s", "speed_factor", "lag",
-                                        "s_time")]
+                                        "s_time", "stalled_for", "skipping", "stalls", "skipped", "s_stalled",
+                                        "deficit", "approach_len", "approach_pts", "approach_nv")]
 
 
 class Metrics(ctypes.Structure):

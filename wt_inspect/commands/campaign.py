@@ -70,7 +70,6 @@ from wt_inspect_env.wind import MAX_WIND_SPEED
 
 from ..evaluation import OutputDirError, prepare_out_dir, registry, resume_runs
 from ..evaluation.backends import BACKENDS, check_jobs, run_specs
-from ..evaluation.harness_metrics import D_MIN_RATIO
 from ..evaluation.runner import RunResult, RunSpec, fly, make_env, make_spec, save_run
 
 SCENARIO = "campaign"
@@ -111,8 +110,8 @@ COLUMNS = ("episode", "seed", "turbine", "turbine_scale", "wind", "wind_directio
            "blade_length", "blade_width", "rotor_azimuth_deg", "start_offset_m", "start_redraws", "mass_factor",
            "thrust_factor", "termination", "mission_complete", "crashed", "exception", "non_finite", "collisions",
            "steps", "fallback_steps", "fallback_fraction", "coverage", "safety", "centering", "min_distance",
-           "clearance_min_m", "clearance_body_min_m", "time_below_d_min_s", "energy_wh", "path_length",
-           "sim_time", "wall_time", "rss_mb", "worker", "run_file", "error")
+           "clearance_min_m", "clearance_body_min_m", "time_below_d_min_s", "stalls", "skipped_path_m",
+           "energy_wh", "path_length", "sim_time", "wall_time", "rss_mb", "worker", "run_file", "error")
 # The per-episode metrics whose distribution is reported: column, label, unit, scale, worse when
 # ("low" / "high").
 METRICS: tuple[tuple[str, str, str, float, str], ...] = (
@@ -355,7 +354,9 @@ def _row(draw: Mapping[str, Any], res: RunResult) -> dict[str, Any]:
             "centering": m.get("centering_cm", math.nan), "min_distance": m.get("min_distance_m", math.nan),
             "clearance_min_m": m.get("clearance_min_m", math.nan),
             "clearance_body_min_m": m.get("clearance_body_min_m", math.nan),
-            "time_below_d_min_s": m.get("time_below_d_min_s", math.nan), "energy_wh": m.get("energy_wh", math.nan),
+            "time_below_d_min_s": m.get("time_below_d_min_s", math.nan),
+            "stalls": m.get("stalls", math.nan), "skipped_path_m": m.get("skipped_path_m", math.nan),
+            "energy_wh": m.get("energy_wh", math.nan),
             "path_length": m.get("path_length_m", math.nan),
             "sim_time": res.sim_time_s, "wall_time": res.wall_time_s, "rss_mb": res.solve.get("rss_mb", math.nan),
             "worker": int(res.solve.get("worker_pid", 0) or 0), "run_file": res.path.name if res.path else "",
@@ -404,6 +405,7 @@ def summarise(rows: Sequence[Mapping[str, Any]], d_min: float | None = None) -> 
             "episodes_with_collisions": sum(int(r["collisions"]) > 0 for r in rows),
             "mission_complete": sum(r["termination"] == "mission_complete" for r in rows),
             "clearance_below_d_min": sum(_f(r["clearance_min_m"]) < d_min for r in rows), "d_min_m": d_min,
+            "episodes_with_stalls": sum(_f(r.get("stalls", math.nan)) > 0 for r in rows),
             "steps": steps, "fallback_steps": fb, "fallback_fraction": fb / steps if steps else math.nan,
             "rss_first_mb": rss[0] if rss else math.nan, "rss_last_mb": rss[-1] if rss else math.nan,
             "rss_max_mb": max(rss) if rss else math.nan, "rss_slope_mb_per_episode": slope,
@@ -416,7 +418,7 @@ def summarise(rows: Sequence[Mapping[str, Any]], d_min: float | None = None) -> 
 
 def _d_min() -> float:
     from wt_inspect_env.env_config import EnvConfig
-    return D_MIN_RATIO * EnvConfig().standoff     # the episodes fly the default stand-off
+    return float(EnvConfig().d_min)     # the episodes fly the default stand-off
 
 
 def failures(row: Mapping[str, Any], d_min: float) -> list[str]:
@@ -434,6 +436,8 @@ def failures(row: Mapping[str, Any], d_min: float) -> list[str]:
         out.append("clearance below d_min")
     if not row["exception"] and not row["crashed"] and not row["mission_complete"]:
         out.append("not completed" + (f" ({row['termination']})" if row["termination"] else ""))
+    if _f(row.get("stalls", math.nan)) > 0:
+        out.append(f"reference stalled {int(_f(row['stalls']))}x ({_f(row.get('skipped_path_m', math.nan)):.0f} m skipped)")
     return out
 
 
@@ -520,6 +524,7 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
         f"| episodes with a collision | {s['episodes_with_collisions']} | 0 |",
         f"| missions completed | {s['mission_complete']} of {s['episodes']} | all |",
         f"| episodes with clearance to the structure below d_min = {d_min:g} m | {s['clearance_below_d_min']} | 0 |",
+        f"| episodes whose reference stalled (moved on without the drone) | {s['episodes_with_stalls']} | 0 |",
         f"| QP fallbacks | {s['fallback_steps']:.0f} of {s['steps']} steps ({100 * s['fallback_fraction']:.4f} %) "
         f"| < 0.01 % |",
         f"| worker memory (RSS after each episode) | {s['rss_first_mb']:.1f} -> {s['rss_last_mb']:.1f} MB, max "
@@ -583,7 +588,13 @@ def _figure(rows: Sequence[Mapping[str, Any]], path: Path, d_min: float) -> Path
         v = np.array([_f(r[col]) for r in rows]) * scale
         ok = np.isfinite(v)
         if ok.any():
-            ax.hist(v[ok], bins=min(30, max(5, int(ok.sum()) // 3)), color="C0")
+            vals = v[ok]
+            lo, hi = float(vals.min()), float(vals.max())
+            pad = max(1e-6, 0.01 * max(abs(lo), abs(hi)))
+            if hi - lo <= 1e-9 * max(1.0, abs(lo), abs(hi)):   # (nearly) one value: one bar round it
+                ax.hist(vals, bins=1, range=(lo - pad, hi + pad), color="C0")
+            else:
+                ax.hist(vals, bins=min(30, max(5, int(ok.sum()) // 3)), color="C0")
         if col == "clearance_min_m":
             ax.axvline(d_min, color="r", lw=0.8, ls="--", label=f"d_min {d_min:g} m")
             ax.legend(fontsize=7)
@@ -794,7 +805,8 @@ def write_comparison(cfg: CampaignConfig, docs: Mapping[str, Mapping[str, Any]],
     for label, key in (("exceptions", "exceptions"), ("non-finite states", "non_finite_states"),
                        ("crashes", "crashes"), ("episodes with a collision", "episodes_with_collisions"),
                        ("missions completed", "mission_complete"),
-                       (f"clearance below d_min = {d_min:g} m", "clearance_below_d_min")):
+                       (f"clearance below d_min = {d_min:g} m", "clearance_below_d_min"),
+                       ("episodes with a reference stall", "episodes_with_stalls")):
         lines.append(f"| {label} | " + " | ".join(str(summaries[c][key]) for c in names) + " |")
     lines.append("| QP fallbacks [% of steps] | " + " | ".join(
         _fmt(summaries[c]["fallback_fraction"], 100, 4) for c in names) + " |")

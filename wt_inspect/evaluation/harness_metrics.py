@@ -28,10 +28,9 @@ Clearance to the turbine (``clearance_*``)
       corner points at the nearest point), cheap, and the box is what PyBullet collides;
     * ``time_below_d_min_s``: the simulated time with ``clearance < d_min``, each sample k >= 1
       counting for the step that ends at it (``t_k - t_{k-1}``);
-    * ``d_min_m``: the threshold, the MPCs' default ``d_min`` = 3/7 d_ref (3 m at the paper's
-      7 m stand-off; :data:`D_MIN_RATIO`, the same ratio as
-      ``controllers.rti_policy.DEFAULT_D_MIN_RATIO``), which their constraint keeps for the
-      centre - so the centre's clearance is what is compared with it.
+    * ``d_min_m``: the threshold, the environment's ``d_min`` (default 3/7 d_ref, 3 m at the paper's
+      7 m stand-off: :data:`~wt_inspect_env.env_config.D_MIN_RATIO`), which the MPCs' constraint keeps
+      for the centre - so the centre's clearance is what is compared with it.
 
 Energy (``energy_wh``, ``mean_power_w``)
     ``P_k`` = :func:`~wt_inspect_env.quadrotor.electrical_power` of the four rotor thrusts at
@@ -50,12 +49,10 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from wt_inspect_env.env_config import D_MIN_RATIO  # noqa: F401  (re-exported: the metric's threshold ratio)
 from wt_inspect_env.proximity import MeshProximity
 from wt_inspect_env.quadrotor import QuadrotorParams, electrical_power
 
-#: d_min / d_ref of the clearance metric: the MPCs' default (controllers.rti_policy.DEFAULT_D_MIN_RATIO,
-#: kept equal by a test; the harness does not import the controllers).
-D_MIN_RATIO = 3.0 / 7.0
 _CHUNK = 4096            # points per vectorised proximity query (bounds the temporary arrays)
 _CANDIDATES = 24         # nearest triangles per point: twice the MPCs' 12, at the same cost vectorised
 _STRIDE = 8              # samples between the exact queries whose values bound their neighbours'

@@ -40,7 +40,8 @@ CSV_COLUMNS = ("scenario", "controller", "wind", "seed", "coverage", "safety", "
                "min_distance", "max_distance", "rms_distance_error", "collisions", "flight_time", "path_length",
                "mean_heading_error_deg", "clearance_min_m", "clearance_body_min_m", "time_below_d_min_s", "d_min_m",
                "energy_wh", "mean_power_w", "solve_median_ms", "solve_p99_ms", "act_median_ms", "act_p99_ms",
-               "termination", "mission_complete", "steps", "sim_time", "wall_time", "run_file")
+               "termination", "mission_complete", "stalls", "skipped_path_m", "steps", "sim_time", "wall_time",
+               "run_file")
 PAPER_ORDER = ("nmpc", "pampc", "vtnmpc")
 
 
@@ -80,7 +81,7 @@ def read_csv(path: str | Path) -> list[dict[str, Any]]:
                 elif k == "mission_complete":
                     parsed[k] = v == "true"
                 else:
-                    parsed[k] = float(v)
+                    parsed[k] = float(v) if v != "" else math.nan   # a column older files lack
             out.append(parsed)
     return out
 
@@ -161,6 +162,7 @@ ROWS = (
     ("Mean power", "mean_power_w", _w, "mean"),
     ("Path length", "path_length", _path, "mean"),
     ("Collisions", "collisions", lambda v: "-" if not math.isfinite(v) else f"{v:.0f}", "sum"),
+    ("Reference stalls", "stalls", lambda v: "-" if not math.isfinite(v) else f"{v:.0f}", "sum"),
     ("Solve time (median)", "solve_median_ms", _ms, "mean"),
     ("Solve time (p99)", "solve_p99_ms", _ms, "mean"),
     ("Flight time", "flight_time", lambda v: "-" if not math.isfinite(v) else f"{v:.0f} s", "mean"),
@@ -168,7 +170,7 @@ ROWS = (
 
 
 def _aggregate(rows: Sequence[dict[str, Any]], col: str, how: str) -> float:
-    vals = np.array([float(r[col]) for r in rows], dtype=float)
+    vals = np.array([float(r.get(col, math.nan)) for r in rows], dtype=float)
     vals = vals[np.isfinite(vals)]
     if not len(vals):
         return math.nan

@@ -70,7 +70,7 @@ from wt_inspect_env.atomic_io import atomic_path
 from wt_inspect_env.geometry import camera_heading, heading_and_distance
 
 from . import registry
-from .harness_metrics import D_MIN_RATIO, clearance_metrics, energy_metrics, geometry_index, mesh_clearance, rotor_power
+from .harness_metrics import clearance_metrics, energy_metrics, geometry_index, mesh_clearance, rotor_power
 
 FORMAT = "wt-inspect-run/1"
 ENV_ID = "WindTurbineInspection-v0"   # the task comes from the options
@@ -86,6 +86,7 @@ METRIC_COLUMNS = {
     "clearance_min_m": "clearance_min_m", "clearance_body_min_m": "clearance_body_min_m",
     "time_below_d_min_s": "time_below_d_min_s", "d_min_m": "d_min_m",
     "energy_wh": "energy_wh", "mean_power_w": "mean_power_w",
+    "stalls": "stalls", "skipped_path_m": "skipped_path_m",
 }
 
 ProgressCallback = Callable[[float, float], None]
@@ -295,7 +296,7 @@ class _Track:
         t = self.t[:n]
         turbines = env.mission.turbines
         geo = geometry_index(self.waiting[:n], len(turbines))
-        d_min = D_MIN_RATIO * float(env.config.standoff)
+        d_min = float(env.config.d_min)
         clearance = mesh_clearance(self.pos[:n], [tb.mesh for tb in turbines], geo, d_min=d_min)
         plant = _plant(sim)
         power = rotor_power(plant, self.thrust[:n])
@@ -417,7 +418,9 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         if record:
             i = _record(rec, u, obs, info)
         if terminated or truncated:
-            termination = info["termination"] or ("mission_complete" if info["mission_complete"] else "time_limit")
+            termination = info["termination"] or ("mission_complete" if info["mission_complete"] else
+                                                   "reference_stall" if info["stalls"] and
+                                                   u.config.reference_on_stall == "end" else "time_limit")
             complete = bool(info["mission_complete"])
             break
         if spec.max_time is not None and info["time"] >= spec.max_time - 1e-9:
@@ -443,6 +446,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         arrays["triangle_blade"] = np.asarray(t0.triangle_blade, dtype=np.int16)
         arrays["triangle_face"] = np.asarray(t0.triangle_face, dtype=np.int16)
         arrays["rotor_center"] = np.asarray(t0.rotor_center, dtype=np.float64)
+    extra |= {"stalls": float(info["stalls"]), "skipped_path_m": float(info["skipped_m"])}
     return RunResult(spec=spec, metrics=dict(info["metrics"]) | extra, termination=termination,
                      mission_complete=complete,
                      steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,

@@ -16,10 +16,12 @@ from pathlib import Path
 from ..atomic_io import atomic_paths, check_out_dir
 from ..figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from ..planner import PlannerConfig, plan_inspection
-from ..planner.config import STANDOFF_MODES
+from ..planner.config import PAPER_ROTOR_TURN_DEG, STANDOFF_MODES
 from ..turbine import TurbineSpec, build_turbine
 from ..validation import coerce_config
 from .args import float_or_auto, json_object
+
+_PAPER_OR_AUTO = object()   # --rotor-turn not given: the env's "auto" rule
 
 _SPEC_ARGS = {  # option -> TurbineSpec field
     "tower_height": "tower_height", "blade_length": "blade_length", "blade_width": "blade_width",
@@ -63,9 +65,10 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--spacing", type=float, metavar="M", help=f"path sample spacing [m] ({c.spacing:g})")
     p.add_argument("--clearance", type=float, metavar="M",
                    help=f"min distance of the stand-off path to the turbine [m] ({c.clearance:g})")
-    p.add_argument("--rotor-turn", type=float_or_auto("--rotor-turn"), default=c.rotor_turn_deg, metavar="DEG|auto",
-                   help=f"turn before phase 2 [deg] ({c.rotor_turn_deg:g}); auto: the planner chooses the rotor "
-                        "turns (none, one or more) that make every surface inspectable with the least flight")
+    p.add_argument("--rotor-turn", type=float_or_auto("--rotor-turn"), default=_PAPER_OR_AUTO, metavar="DEG|auto",
+                   help=f"turn before phase 2 [deg]; auto: the planner chooses the rotor turns (none, one or "
+                        f"more) that make every surface inspectable with the least flight (default: "
+                        f"{c.rotor_turn_deg:g} on the paper's turbine, auto on any other, as the env does)")
     p.add_argument("--max-down", type=float, metavar="DEG",
                    help=f"steepest downward normal inspected with a level camera [deg] ({c.max_down_deg:g})")
     p.add_argument("--max-up", type=float, metavar="DEG", help=f"steepest upward normal [deg] ({c.max_up_deg:g})")
@@ -89,7 +92,10 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
                                               TurbineSpec))
         t_build = time.perf_counter() - t0
         # --rotor-turn always reaches the planner: None (auto) is a value, not "not given"
-        plan = plan_inspection(turbine, PlannerConfig(**_picked(args, _PLAN_ARGS), rotor_turn_deg=args.rotor_turn))
+        turn = args.rotor_turn
+        if turn is _PAPER_OR_AUTO:
+            turn = PAPER_ROTOR_TURN_DEG if turbine.spec == TurbineSpec() else None
+        plan = plan_inspection(turbine, PlannerConfig(**_picked(args, _PLAN_ARGS), rotor_turn_deg=turn))
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

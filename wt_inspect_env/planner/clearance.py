@@ -113,12 +113,30 @@ class NoRouteError(RuntimeError):
     """No collision-free transit was found between two stand-off positions."""
 
 
+def detour_frame(axis: np.ndarray) -> np.ndarray:
+    """Rows: rotor axis, vertical, lateral (axis x up): the directions detours are tried along."""
+    up = np.array([0.0, 0.0, 1.0])
+    axis = np.asarray(axis, dtype=np.float64)
+    lat = np.cross(axis, up)
+    if np.linalg.norm(lat) < 1e-6:
+        lat = np.cross(axis, [1.0, 0.0, 0.0])
+    return np.stack([axis, up, lat / np.linalg.norm(lat)])
+
+
+def detour_offsets(standoff: float) -> tuple[float, ...]:
+    """How far [m] detour via points are tried from the segment: half, one, two and four
+    stand-offs (a stand-off clears a blade's chord from its face; four clear a rotor's hub)."""
+    return tuple(standoff * f for f in (0.5, 1.0, 2.0, 4.0))
+
+
 class Clearance:
-    """Clearance checks and transit routing around one rotor configuration."""
+    """Clearance checks and transit routing around one rotor configuration. ``floor``: the
+    ground's height; a point counts as clear only that far above it too (default: no ground)."""
 
     def __init__(self, field: DistanceField, clearance: float, step: float, frame: np.ndarray,
-                 offsets: tuple[float, ...]) -> None:
+                 offsets: tuple[float, ...], floor: float = -np.inf) -> None:
         self.field = field
+        self.floor = float(floor)
         self.clearance = clearance
         self.step = step
         self.required = clearance + step / 2.0
@@ -132,8 +150,12 @@ class Clearance:
         self.offsets = tuple(offsets)
 
     def distances(self, points: np.ndarray) -> np.ndarray:
-        """Distances capped just above the required clearance (cheap: few candidate triangles)."""
-        return self.field.distance(points, self.required + 1e-6)
+        """Distances capped just above the required clearance (cheap: few candidate triangles), and
+        at most the height above the floor."""
+        d = self.field.distance(points, self.required + 1e-6)
+        if self.floor == -np.inf:
+            return d
+        return np.minimum(d, np.asarray(points, float).reshape(-1, 3)[:, 2] - self.floor)
 
     def is_clear(self, points: np.ndarray) -> bool:
         return bool(np.all(self.distances(points) >= self.required))

@@ -15,6 +15,20 @@ from ..validation import (
 )
 
 STANDOFF_MODES = ("horizontal", "normal")
+#: d_min / d_ref: the flight's minimum distance to the structure as a share of the stand-off (3 m at the
+#: paper's 7 m). The one home of that number: the planner's default clearance, the MPCs' clearance
+#: constraint, the harness's clearance metrics and the reference's allowance all derive from it.
+D_MIN_RATIO = 3.0 / 7.0
+#: the deceleration [m/s^2] a flight near the structure counts on to stop: the MPCs' clearance
+#: constraint adds the stopping distance v^2 / (2 a) at the approach speed v, and the reference's
+#: approach from a far start moves no faster than sqrt(2 a (d_ref - d_min)), at which a drone on its
+#: stand-off pose can stop short of d_min.
+CLEARANCE_BRAKE = 3.0
+#: the paper's rotor turn between its two phases [deg] (the planner's default, and the env's on the
+#: paper's turbine).
+PAPER_ROTOR_TURN_DEG = 120.0
+#: max_end_trim / d_ref by default (see ``max_end_trim``).
+END_TRIM_RATIO = 0.375
 
 
 @dataclass(frozen=True)
@@ -47,10 +61,17 @@ class PlannerConfig:
         other lower blade). Surfaces still outside the band after the turn are an error.
     clearance
         Minimum distance from every stand-off position of the path to the turbine (blades, hub,
-        tower); transitions detour to keep it, inspection stand-offs that violate it are an error.
+        tower); transitions detour to keep it, inspection stand-offs that violate it are trimmed at
+        their ends or make the surface uninspectable in that rotor position. ``None`` (default):
+        the flight's d_min, :data:`D_MIN_RATIO` x standoff (3 m at 7 m) - the distance the MPCs'
+        clearance constraint keeps, so that the path never asks a drone to pass where its
+        controller may not (with the check margin ``check_step / 2`` the path clears d_min + 0.125 m;
+        a path planned with less leaves gaps, e.g. between a blade edge and the tower, where the
+        constraint holds the drone and the closed-loop reference waits).
     check_step
         Sampling step of the clearance checks along the stand-off path (each sample must clear
-        ``clearance + check_step / 2``, which makes the continuous path clear ``clearance``).
+        ``clearance + check_step / 2``, which makes the continuous path clear ``clearance``);
+        ``None``: standoff / 28 (0.25 m at 7 m).
     cluster_angle_deg
         A blade triangle whose normal leans more than this out of the blade's cross-section plane
         faces the root or the tip (a cap) and belongs to no inspection surface (see
@@ -58,22 +79,25 @@ class PlannerConfig:
     max_end_trim
         How far [m] an end of a surface's centre line may be moved inwards when the stand-off
         at that end is not clear of the turbine (e.g. the root of a back face whose stand-off
-        passes behind a large hub); ``None``: a quarter of the stand-off. The trimmed end must
-        stay in the camera's image from the new end node: the default camera's image is 0.65 d_ref
-        high (4.6 m at 7 m), so a quarter of d_ref keeps the root row inside its half height with
-        margin. A surface that needs more trimming, or whose stand-off is blocked away from its
-        ends, is not inspectable in that rotor position. 0 disables trimming.
+        passes behind a large hub); ``None``: :data:`END_TRIM_RATIO` x the stand-off (2.6 m at
+        7 m). The trimmed end should stay in the camera's image from the new end node: the default
+        camera's image is 0.98 x 0.65 d_ref (6.9 x 4.6 m at 7 m), so 0.375 d_ref keeps the root row
+        inside its half width, and inside its half height up to 0.33 d_ref. That much is needed
+        since the clearance is d_min: the NREL 5-MW blade's root faces beside its 3 m hub need
+        2.0-2.6 m at 3 m clearance (a quarter of d_ref, enough at the former 2 m, left no rotor
+        position for some). A surface that needs more trimming, or whose stand-off is blocked
+        away from its ends, is not inspectable in that rotor position. 0 disables trimming.
     """
 
     standoff: float = 7.0
     spacing: float = 0.1
     start: tuple[float, float, float] | None = None
-    rotor_turn_deg: float | None = 120.0
+    rotor_turn_deg: float | None = PAPER_ROTOR_TURN_DEG
     rotor_turn_step_deg: float = 10.0
     max_down_deg: float = 45.0
     max_up_deg: float = 75.0
-    clearance: float = 2.0
-    check_step: float = 0.25
+    clearance: float | None = None
+    check_step: float | None = None
     standoff_mode: str = "horizontal"
     cluster_angle_deg: float = 20.0
     max_end_trim: float | None = None
@@ -95,9 +119,13 @@ class PlannerConfig:
         put("rotor_turn_step_deg", check_range("rotor_turn_step_deg", self.rotor_turn_step_deg, 1.0, 60.0))
         put("max_down_deg", check_range("max_down_deg", self.max_down_deg, 0.0, 89.0))
         put("max_up_deg", check_range("max_up_deg", self.max_up_deg, 0.0, 89.0))
+        if self.clearance is None:
+            put("clearance", D_MIN_RATIO * self.standoff)
         put("clearance", check_positive("clearance", self.clearance))
         if self.clearance >= self.standoff:
             raise ValueError(f"clearance must be below standoff ({self.standoff}), got {self.clearance!r}")
+        if self.check_step is None:
+            put("check_step", self.standoff / 28.0)
         put("check_step", check_positive("check_step", self.check_step))
         if self.check_step > self.clearance:
             raise ValueError(f"check_step must not exceed clearance ({self.clearance}), got {self.check_step!r}")
@@ -108,8 +136,8 @@ class PlannerConfig:
 
     @property
     def end_trim_limit(self) -> float:
-        """``max_end_trim`` resolved (a quarter of the stand-off when ``None``)."""
-        return 0.25 * self.standoff if self.max_end_trim is None else self.max_end_trim
+        """``max_end_trim`` resolved (:data:`END_TRIM_RATIO` x the stand-off when ``None``)."""
+        return END_TRIM_RATIO * self.standoff if self.max_end_trim is None else self.max_end_trim
 
     @classmethod
     def from_options(cls, options: Mapping[str, Any], base: "PlannerConfig | None" = None) -> "PlannerConfig":

@@ -52,7 +52,7 @@ import numpy as np
 
 from ..atomic_io import atomic_path
 from ..turbine import TurbineMesh, rotation_matrix
-from .clearance import Clearance, DistanceField
+from .clearance import Clearance, DistanceField, detour_frame, detour_offsets
 from .clustering import Surface, cluster_surfaces, describe_surface
 from .config import PlannerConfig
 from .ordering import HeldKarp, TourSolution
@@ -62,6 +62,7 @@ CSV_HEADER = "x,y,z,nx,ny,nz,surface,phase,s"
 OPPOSITE_COS = math.cos(math.radians(150.0))   # normals further apart than 150 deg: opposite faces
 ADJACENT_COS = 0.5                              # |n_a . n_b| below this: faces meeting at an edge
 KIND_NAMES = ("surface", "wrap", "transit")
+_BAND_EDGE_DEG = 1e-9                           # a face exactly on the band edge is in it (turned normals round)
 
 
 @dataclass(frozen=True)
@@ -198,15 +199,6 @@ class InspectionPlan:
 
 
 # --------------------------------------------------------------------------- helpers
-def _frame(axis: np.ndarray) -> np.ndarray:
-    """Rows: rotor axis, vertical, lateral (axis x up): the directions detours are tried along."""
-    up = np.array([0.0, 0.0, 1.0])
-    lat = np.cross(axis, up)
-    if np.linalg.norm(lat) < 1e-6:
-        lat = np.cross(axis, [1.0, 0.0, 0.0])
-    return np.stack([axis, up, lat / np.linalg.norm(lat)])
-
-
 def _forbidden(geo: list[Surface]) -> np.ndarray:
     """Opposite faces of one blade: a straight move between them would pass through the blade."""
     n = np.array([g.normal for g in geo]).reshape(-1, 3)
@@ -336,7 +328,7 @@ class _Position:
             else:
                 g = self._turned(s0)
             lo, hi = g.elevation_range_deg
-            if lo < -c.max_down_deg or hi > c.max_up_deg:
+            if lo < -c.max_down_deg - _BAND_EDGE_DEG or hi > c.max_up_deg + _BAND_EDGE_DEG:
                 el = f"{g.elevation_deg:.1f}" if g.line is None else f"{lo:.1f}..{hi:.1f}"
                 self._checked[sid] = (f"normal elevation {el} deg, outside [-max_down_deg, "
                                       f"max_up_deg] = [-{c.max_down_deg}, {c.max_up_deg}]")
@@ -488,8 +480,8 @@ def plan_inspection(turbine: TurbineMesh, config: PlannerConfig | None = None, *
 
     # 2. rotor positions: what is inspectable where -----------------------------------------
     rotor = _RotorGeometry(turbine)
-    frame = _frame(turbine.rotor_axis)
-    offsets = tuple(d * f for f in (0.5, 1.0, 2.0, 4.0))
+    frame = detour_frame(turbine.rotor_axis)
+    offsets = detour_offsets(d)
     positions: dict[float, _Position] = {}
 
     def position(turn: float) -> _Position:

@@ -188,7 +188,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                 final_obs = {k: v[i].copy() for k, v in obs.items()}
                 final_info = {"metrics": self.metrics(i), "termination": names[r.code[i]],
                               "mission_complete": bool(r.complete[i]), "coverage": float(w.coverage[i]),
-                              "episode_steps": int(w.steps[i]), "variant": int(self.variant[i])}
+                              "episode_steps": int(w.steps[i]), "variant": int(self.variant[i]),
+                              "stalls": int(w.reference.stalls[i]), "skipped_m": float(w.reference.skipped[i])}
                 if w.randomization[i] is not None:
                     final_info["randomization"] = w.randomization[i].to_info()
                 infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
@@ -233,6 +234,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             "coverage": w.coverage, "phase": s.phase.copy(), "time": w.sim.time,
             "waiting_for_phase_change": s.waiting_for_phase_change.copy(),
             "ideal_position": s.ideal_position.copy(), "wind": w.sim.last_wind.copy(),
+            "approaching": w.reference.approaching,
         }
         if r is not None:
             names = w.hooks.termination_names

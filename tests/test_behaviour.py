@@ -1,0 +1,105 @@
+"""Behaviour digests decide whether a study is current (``wt_inspect.behaviour``): the digest of a
+flight, its comparison, the runs a study's commands fly, and - end to end on a tiny checkout - a
+deliberate change of one controller's weight makes exactly the studies that fly it stale."""
+from __future__ import annotations
+
+import io
+import json
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from wt_inspect import behaviour, reproduce
+
+
+def _trajectory(n: int = 2501, dt: float = 0.01):
+    t = np.arange(n) * dt
+    pos = np.stack([np.sin(t), np.cos(t), 0.1 * t], axis=1) * 10.0
+    vel = np.gradient(pos, dt, axis=0)
+    return t, pos, vel
+
+
+def test_the_digest_samples_every_whole_second_of_the_prefix():
+    t, pos, vel = _trajectory()
+    d = behaviour.digest(t, pos, vel, seconds=20.0)
+    assert d["t"] == pytest.approx(np.arange(1.0, 21.0))
+    np.testing.assert_allclose(d["position"], pos[100:2001:100], atol=0.5 * 10 ** -behaviour.DECIMALS)
+    short = behaviour.digest(t[:550], pos[:550], vel[:550], seconds=20.0)   # a run that ended at 5.49 s
+    assert len(short["t"]) == 5
+
+
+def test_compare_agrees_within_the_tolerance_and_names_the_first_difference():
+    t, pos, vel = _trajectory()
+    d = behaviour.digest(t, pos, vel)
+    noise = behaviour.digest(t, pos + 1e-7, vel - 1e-7)          # far beyond cross-machine rounding
+    assert behaviour.compare(d, noise) == ""
+    moved = pos.copy()
+    moved[700:] += [0.0, 0.0, 0.01]                              # 1 cm from t = 7 s on
+    why = behaviour.compare(d, behaviour.digest(t, moved, vel))
+    assert why.startswith("position at t = 7 s differs by 0.01 m"), why
+    why = behaviour.compare(d, behaviour.digest(t[:550], pos[:550], vel[:550]))
+    assert "5 samples flown, 20 recorded" in why
+
+
+def test_the_runs_of_a_study_are_planned_from_its_commands():
+    paper = behaviour.study_runs(["wt-inspect evaluate --scenario paper --controllers vtnmpc,nmpc --winds 0,4 "
+                                  "--out results/x --no-progress"])
+    assert [(r.runner, r.spec.controller, r.spec.wind) for r in paper] == [
+        ("evaluate", "vtnmpc", 0.0), ("evaluate", "nmpc", 0.0), ("evaluate", "vtnmpc", 4.0), ("evaluate", "nmpc", 4.0)]
+    camp = behaviour.study_runs(["wt-inspect campaign --episodes 3 --controllers vtnmpc-plus,nmpc --out x"])
+    assert [r.spec.controller for r in camp] == ["vtnmpc-plus"] * 3 + ["nmpc"] * 3
+    assert [r.spec.seed for r in camp[:3]] == [r.spec.seed for r in camp[3:]]   # the same episodes
+    assert {r.runner for r in camp} == {"campaign"}
+    abl = behaviour.study_runs(["wt-inspect ablation --out x --task surface --winds 4 --rows 2"])
+    assert {r.spec.scenario for r in abl} == {"paper-faithful-surface"} and len(abl) >= 3
+    # commands that fly nothing have no digest; the first and the last run carry it
+    assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
+    assert [r.spec.controller for r in behaviour.digested_runs(
+        ["wt-inspect evaluate --scenario surface --controllers vtnmpc,nmpc,pampc --winds 4 --out x"])] == \
+        ["vtnmpc", "pampc"]
+    with pytest.raises(ValueError, match="do not parse"):
+        behaviour.study_runs(["wt-inspect evaluate --scenario paper --nope --out x"])
+
+
+def _checkout(tmp_path: Path, seconds: float) -> tuple[Path, list[reproduce.Study]]:
+    """Two one-run studies (VT-NMPC and NMPC on the surface scenario) with provenance whose
+    behaviour digests the current code flew."""
+    studies = []
+    for name, ctrl in (("a", "vtnmpc"), ("b", "nmpc")):
+        folder = tmp_path / "results" / name
+        folder.mkdir(parents=True)
+        cmd = f"wt-inspect evaluate --scenario surface --controllers {ctrl} --winds 4 --out results/{name}"
+        study = reproduce.Study(name, f"results/{name}", (cmd,))
+        (folder / reproduce.PROVENANCE).write_text(json.dumps(
+            {"study": name, "commands": [cmd], "code": "x", "complete": True,
+             "behaviour": behaviour.record([cmd], seconds=seconds)}))
+        studies.append(study)
+    return tmp_path, studies
+
+
+def test_a_changed_weight_makes_exactly_the_studies_that_fly_it_stale(tmp_path, monkeypatch):
+    from controllers import vtnmpc
+    root, studies = _checkout(tmp_path, seconds=4.0)
+    assert [reproduce.staleness(root, s) for s in studies] == ["", ""]     # the code is not what made "x"
+    paper = vtnmpc.WEIGHT_SETS["paper"]
+    monkeypatch.setitem(vtnmpc.WEIGHT_SETS, "paper", replace(paper, distance=2.0 * paper.distance))
+    why_a, why_b = (reproduce.staleness(root, s) for s in studies)
+    assert why_a.startswith("behaviour differs: surface vtnmpc wind 4 seed 0:"), why_a
+    assert why_b == ""
+    # without flying, the recorded behaviour is taken as it is
+    assert reproduce.staleness(root, studies[0], fly=False) == ""
+
+
+def test_check_reports_a_study_whose_behaviour_changed(tmp_path, monkeypatch):
+    from controllers import vtnmpc
+    root, studies = _checkout(tmp_path, seconds=2.0)
+    out = io.StringIO()
+    assert reproduce.check(root, studies, out=out) == 0, out.getvalue()
+    paper = vtnmpc.WEIGHT_SETS["paper"]
+    monkeypatch.setitem(vtnmpc.WEIGHT_SETS, "paper", replace(paper, distance=2.0 * paper.distance))
+    out = io.StringIO()
+    assert reproduce.check(root, studies, out=out) == 1
+    assert "stale, not in results/STALE.md: a (results/a): behaviour differs" in out.getvalue()
+    assert "1 current, 1 stale" in out.getvalue()

@@ -1,0 +1,223 @@
+"""Behaviour digests: what decides whether a committed study is still what the code makes.
+
+A hash of the source files makes every study stale on any refactor (a module moved, a duplicate
+merged) although no flight changed. Instead, a study that flies records, in its
+``provenance.json``, a *digest* of the flown state of a few of its runs: position and body-frame
+velocity at every whole second of the first :data:`SECONDS` simulated seconds, rounded to
+:data:`DECIMALS` decimals. ``wt-inspect reproduce --check`` flies that prefix of the same runs
+again with the current code and calls the study current when every sample agrees within
+:data:`TOLERANCE` - whatever files changed.
+
+Why these numbers: between machines of one kind, floating point differs in the last digits, and
+over a whole 1,000 s mission a closed loop spreads that to the 5th-6th significant digit; over
+the first 20 s it stays many orders below a millimetre. A behaviour change - a weight, a gain, an
+option, the planner's path - moves the drone by centimetres within seconds. A tolerance of 2 mm
+(and 2 mm/s) sits between the two. What a prefix cannot see is a change that acts only later in a
+mission (e.g. at the rotor turn); the digests take the first and the last run of each study so
+that different controllers, winds or rows are covered, and the full regeneration
+(``wt-inspect reproduce --force``) remains the way to refresh a study's numbers.
+
+The runs of a study are those its commands would fly, planned from the commands themselves with
+the subcommands' own parsers (:func:`study_runs`); only ``evaluate``, ``campaign`` and
+``ablation`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
+digest; its staleness is decided by the code version as before.
+"""
+from __future__ import annotations
+
+import math
+import shlex
+from dataclasses import dataclass, replace
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+#: simulated seconds of each digested prefix
+SECONDS = 20.0
+#: rounding of the recorded samples [m, m/s]
+DECIMALS = 4
+#: largest difference of any sample for two digests to agree [m, m/s]
+TOLERANCE = 2e-3
+#: subcommands whose runs can be digested
+FLYING = ("evaluate", "campaign", "ablation")
+
+
+@dataclass(frozen=True)
+class StudyRun:
+    """One run a study's command flies: how to fly it (``runner``: ``"evaluate"`` for the
+    harness's :func:`~wt_inspect.evaluation.runner.execute`, ``"campaign"`` for a campaign
+    episode) and its run spec."""
+
+    runner: str
+    spec: Any   # wt_inspect.evaluation.runner.RunSpec
+
+    def label(self) -> str:
+        s = self.spec
+        return f"{s.scenario} {s.controller} wind {s.wind:g} seed {s.seed}"
+
+
+def digest(t: np.ndarray, position: np.ndarray, velocity: np.ndarray, seconds: float = SECONDS) -> dict[str, Any]:
+    """The digest of one trajectory: ``t`` (N,) simulated time, ``position`` and ``velocity``
+    (N, 3), sampled at the first sample at or after each whole second 1 .. ``seconds`` that the
+    trajectory reaches (a run that ended earlier, e.g. in a collision, gives fewer samples)."""
+    t = np.asarray(t, dtype=float)
+    marks = np.arange(1.0, math.floor(seconds) + 1.0)
+    marks = marks[marks <= t[-1] + 1e-9] if len(t) else marks[:0]
+    idx = np.searchsorted(t, marks - 1e-9)
+    return {"t": [round(float(x), 6) for x in t[idx]],
+            "position": np.round(np.asarray(position, dtype=float)[idx], DECIMALS).tolist(),
+            "velocity": np.round(np.asarray(velocity, dtype=float)[idx], DECIMALS).tolist()}
+
+
+def compare(recorded: Mapping[str, Any], flown: Mapping[str, Any], tolerance: float = TOLERANCE) -> str:
+    """Why two digests differ ("" when they agree): sample count, time or a state beyond
+    ``tolerance``, naming the first sample that differs and by how much."""
+    n_rec, n_flown = len(recorded.get("t", [])), len(flown.get("t", []))
+    if n_rec != n_flown:
+        return f"{n_flown} samples flown, {n_rec} recorded (the run ends elsewhere)"
+    for key in ("position", "velocity"):
+        a, b = np.asarray(recorded[key], dtype=float), np.asarray(flown[key], dtype=float)
+        if a.shape != b.shape:
+            return f"{key}: shape {b.shape} flown, {a.shape} recorded"
+        if not len(a):
+            continue
+        err = np.abs(a - b).max(axis=-1)
+        bad = np.flatnonzero(~(err <= tolerance))
+        if len(bad):
+            k = int(bad[0])
+            unit = "m" if key == "position" else "m/s"
+            return (f"{key} at t = {recorded['t'][k]:g} s differs by {err[k]:.4g} {unit} "
+                    f"(tolerance {tolerance:g}; largest {np.nanmax(err):.4g} {unit})")
+    return ""
+
+
+# ------------------------------------------------------------------ which runs a command flies
+def _evaluate_runs(argv: Sequence[str]) -> list[StudyRun]:
+    from .evaluation import SweepSpec, _floats, _seeds, plan_sweep
+    from .evaluation.cli import build_parser, resolve
+    from .evaluation.scenarios import get_scenario
+    kw = resolve(build_parser("wt-inspect evaluate").parse_args(list(argv))).run_kwargs()
+    controllers = kw["controllers"]
+    if isinstance(controllers, str):
+        controllers = [c.strip() for c in controllers.split(",") if c.strip()]
+    scenario = kw.get("scenario", "paper")
+    winds = kw.get("winds")
+    sweep = SweepSpec(scenario, kw.get("wind_type", "gust"), dict(kw.get("wind_options") or {}),
+                      dict(kw.get("turbine") or {}), kw.get("drone"), dict(kw.get("env_overrides") or {}))
+    specs = plan_sweep(scenario, list(dict.fromkeys(controllers)),
+                       _floats("winds", get_scenario(scenario).winds if winds is None else winds),
+                       _seeds(kw.get("seeds", (0,))), sweep=sweep, max_time=kw.get("max_time"),
+                       record_every=kw.get("record_every", 1), trust_model=bool(kw.get("trust_model", False)))
+    return [StudyRun("evaluate", s) for s in specs]
+
+
+def _campaign_runs(argv: Sequence[str]) -> list[StudyRun]:
+    from .commands.campaign import CampaignConfig, build_parser, campaign_specs
+    a = build_parser("wt-inspect campaign").parse_args(list(argv))
+    controllers = ([c.strip() for c in a.controllers.split(",") if c.strip()] if a.controllers
+                   else [a.controller or CampaignConfig().controller])
+    out = []
+    for c in dict.fromkeys(controllers):
+        cfg = CampaignConfig(episodes=a.episodes, controller=c, seed=a.seed, task=a.task, max_wind=a.max_wind,
+                             max_offset=a.max_offset, max_time=a.max_time, record_every=a.record_every,
+                             airframe_randomization=not a.no_airframe_randomization,
+                             only=tuple(int(x) for x in a.only.split(",") if x.strip()) if a.only else None)
+        out += [StudyRun("campaign", s) for s in campaign_specs(cfg)[1]]
+    return out
+
+
+def _ablation_runs(argv: Sequence[str]) -> list[StudyRun]:
+    from .ablation import STEPS, TASK_SCENARIOS, _floats, build_parser, plan_rows
+    from .evaluation import SweepSpec, plan_sweep
+    a = build_parser().parse_args(list(argv))
+    scenario = TASK_SCENARIOS[a.task]
+    out = []
+    for row in plan_rows(STEPS[:a.rows] if a.rows else STEPS):
+        sweep = SweepSpec(scenario, "gust", {}, {}, None, dict(row["env"]))
+        specs = plan_sweep(scenario, sorted(set(row["controllers"].values())), _floats(a.winds), [0],
+                           sweep=sweep, max_time=a.max_time, record_every=1)
+        out += [StudyRun("evaluate", s) for s in specs]
+    return out
+
+
+_PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {
+    "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs}
+
+
+def study_runs(commands: Sequence[str]) -> list[StudyRun]:
+    """Every run the ``wt-inspect`` commands fly, in their order (commands that fly nothing add
+    none). ValueError (naming the command) if a flying command does not parse."""
+    out: list[StudyRun] = []
+    for command in commands:
+        argv = shlex.split(command)[1:]
+        if not argv or argv[0] not in _PLANNERS:
+            continue
+        try:
+            out += _PLANNERS[argv[0]](argv[1:])
+        except SystemExit:
+            raise ValueError(f"cannot plan the runs of {command!r}: its arguments do not parse") from None
+    return out
+
+
+def digested_runs(commands: Sequence[str]) -> list[StudyRun]:
+    """The runs of a study that carry its digest: the first and the last it flies (one if it flies
+    one run, none if it flies none)."""
+    runs = study_runs(commands)
+    return [runs[0], runs[-1]] if len(runs) > 1 else runs
+
+
+# ------------------------------------------------------------------ flying a prefix
+def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
+    """Fly the first ``seconds`` of ``run`` with the current code (no file written) and return
+    its digest. ValueError if the run raised (a campaign episode reports it in its result)."""
+    spec = replace(run.spec, max_time=seconds if run.spec.max_time is None else min(seconds, run.spec.max_time),
+                   record_every=1)
+    if run.runner == "campaign":
+        from .commands.campaign import run_episode
+        res = run_episode(spec, record=True)
+        if res.termination == "exception":
+            raise ValueError(f"{run.label()}: {res.metrics.get('error')}")
+    elif run.runner == "evaluate":
+        from .evaluation.runner import execute
+        res = execute(spec, record=True)
+    else:
+        raise ValueError(f"unknown runner {run.runner!r}; known: campaign, evaluate")
+    a = res.arrays
+    return digest(a["t"], a["position"], a["velocity_body"], seconds)
+
+
+def record(commands: Sequence[str], seconds: float = SECONDS,
+           progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """The ``behaviour`` entry of a study's provenance: its digested runs, each with its spec
+    (for the reader) and digest."""
+    runs = []
+    for r in digested_runs(commands):
+        if progress:
+            progress(r.label())
+        runs.append({"runner": r.runner, "run": r.label(), "spec": r.spec.to_dict(), "digest": fly_prefix(r, seconds)})
+    return {"seconds": seconds, "decimals": DECIMALS, "tolerance": TOLERANCE, "runs": runs}
+
+
+def verify(commands: Sequence[str], behaviour: Mapping[str, Any],
+           progress: Callable[[str], None] | None = None) -> str:
+    """Why the current code does not fly the recorded ``behaviour`` ("" when every digested run
+    agrees): the digested runs are planned from ``commands`` again and their prefix flown."""
+    try:
+        runs = digested_runs(commands)
+    except ValueError as exc:
+        return str(exc)
+    recorded = list(behaviour.get("runs", []))
+    if len(recorded) != len(runs):
+        return f"{len(runs)} digested runs planned, {len(recorded)} recorded"
+    seconds = float(behaviour.get("seconds", SECONDS))
+    tolerance = float(behaviour.get("tolerance", TOLERANCE))
+    for r, rec in zip(runs, recorded):
+        if progress:
+            progress(r.label())
+        try:
+            flown = fly_prefix(r, seconds)
+        except Exception as exc:   # any failure of the re-flight is a difference, reported in one line
+            return f"{r.label()}: the re-flight failed: {type(exc).__name__}: {exc}"
+        why = compare(rec.get("digest", {}), flown, tolerance)
+        if why:
+            return f"behaviour differs: {r.label()}: {why}"
+    return ""
