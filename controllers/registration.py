@@ -158,3 +158,9 @@ nmpc_authors = _weights_entry("nmpc-authors", _nmpc_authors_policy,
                               "NMPC (authors' yaw bug)")
 pampc_authors = _weights_entry("pampc", _pampc_authors_policy, "PAMPC as the authors ran it: camera axis body up",
                                "PAMPC (authors' camera axis)")
+
+
+def safety_filter(env: Any, policy: Any) -> Any:
+    """The safety filter a ``NAME+filter`` controller flies through (:mod:`controllers.safety_filter`)."""
+    from .safety_filter import SafetyFilter
+    return SafetyFilter(policy, env)

@@ -341,7 +341,9 @@ def _default_params() -> QuadrotorParams:
 class MPCConfig:
     """What every MPC instance has (clearance fields: see the module docstring - ``d_min`` [m],
     None for 3/7 d_ref, below d_ref; ``clearance_brake`` the deceleration [m/s^2] of the braking
-    term; ``clearance_l1`` / ``clearance_l2`` the slack's L1 / L2 prices (L1 > 0 bounds it below by 0); ``clearance_queries`` how many
+    term; ``clearance_reaction`` [s] the time before that braking starts, during which the drone
+    keeps its present acceleration (0 for the MPCs, which never tilt hard towards the structure;
+    the safety filter's policies may, and turning a tilted drone round takes time); ``clearance_l1`` / ``clearance_l2`` the slack's L1 / L2 prices (L1 > 0 bounds it below by 0); ``clearance_queries`` how many
     stages of the predicted trajectory are looked up per step, evenly spread, each stage taking
     the half-space of the nearest looked-up stage; ``clearance_refresh`` [m], default d_ref / 70:
     the half-spaces are looked up again once a looked-up position has moved this far; nearer to the
@@ -385,6 +387,7 @@ class MPCConfig:
     clearance: bool = True
     d_min: float | None = None
     clearance_brake: float = CLEARANCE_BRAKE
+    clearance_reaction: float = 0.0
     clearance_l1: float = 1e3
     clearance_l2: float = 1e3
     clearance_queries: int = 4
@@ -431,6 +434,7 @@ class MPCConfig:
         if self.d_min >= self.d_ref:
             raise ValueError(f"d_min must be below d_ref ({self.d_ref!r} m), got {self.d_min!r}")
         put("clearance_brake", check_positive("clearance_brake", self.clearance_brake))
+        put("clearance_reaction", check_positive("clearance_reaction", self.clearance_reaction, allow_zero=True))
         put("clearance_l1", check_positive("clearance_l1", self.clearance_l1, allow_zero=True))
         put("clearance_l2", check_positive("clearance_l2", self.clearance_l2))
         put("clearance_queries", check_positive_int("clearance_queries", self.clearance_queries))
@@ -507,9 +511,19 @@ def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
     stage = ca.Function(f"{name}_r", [x, u, p], [ca.vertcat(ocp.stage_residual(x, uc, pc), slack + offset)],
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
-    v_n = ca.dot(n, quat_to_rotmat(x[6:10]) @ x[3:6])          # velocity along the outward direction
+    R = quat_to_rotmat(x[6:10])
+    v_n = ca.dot(n, R @ x[3:6])          # velocity along the outward direction
     approach = ca.fmax(0.0, -v_n)
-    h = ca.dot(n, x[0:3]) - b - approach ** 2 / (2.0 * config.clearance_brake) + slack
+    stop = approach ** 2 / (2.0 * config.clearance_brake)
+    t_r = config.clearance_reaction
+    if t_r > 0.0:
+        # for t_r the drone keeps its present acceleration (thrust along body z, gravity) - a
+        # drone tilted towards the structure gains speed while it turns round - then brakes
+        a_n = ca.dot(n, R[:, 2]) * uc[3] / config.params.mass - GRAVITY * n[2]
+        reach = ca.fmax(0.0, -(v_n * t_r + 0.5 * a_n * t_r ** 2))
+        speed = ca.fmax(0.0, -(v_n + a_n * t_r))
+        stop = reach + speed ** 2 / (2.0 * config.clearance_brake)
+    h = ca.dot(n, x[0:3]) - b - stop + slack
     path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
     return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
                dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER), u_upper=np.append(ocp.u_upper, SLACK_UPPER),
@@ -797,7 +811,10 @@ class RTIPolicy(Policy):
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
-        c = self.command(obs)
+        return self.action_of(self.command(obs))
+
+    def action_of(self, c: np.ndarray) -> np.ndarray:
+        """The normalised env action of a physical command this policy computed."""
         # ActionScaling.to_action without its input check (the command is the solver's own finite
         # (4,) float64): the same operations on the same numbers, so the same float32 action
         scaling = self.scaling

@@ -119,6 +119,11 @@ class Policy(ABC):
 
 
 ENTRY_POINT_GROUP = "wt_inspect.controllers"
+#: entry-point group of safety filters: ``wrap(env, policy) -> policy`` (``filter`` is the one a
+#: controller name's :data:`FILTER_SUFFIX` selects)
+FILTER_ENTRY_POINT_GROUP = "wt_inspect.safety_filters"
+#: a controller name ending in this flies that controller through the safety filter
+FILTER_SUFFIX = "+filter"
 
 
 @dataclass(frozen=True)

@@ -256,6 +256,11 @@ class _FallbackCounter:
     def last_stats(self) -> Any:
         return getattr(self.policy, "last_stats", None)
 
+    @property
+    def stats(self) -> Any:
+        """A safety filter's counts (``NAME+filter``), for the run's report."""
+        return getattr(self.policy, "stats", None)
+
     def reset(self, seed: int | None = None) -> None:
         self.policy.reset(seed=seed)
 

@@ -11,7 +11,10 @@ a :class:`~wt_inspect_env.policy.PolicyEntry`::
 so this harness never imports ``controllers`` or ``agents`` by name, and a third-party controller
 plugs in exactly as ours do (as Gymnasium finds environments). Names are plain (``vtnmpc``,
 ``nmpc``, ...) or, for entries that take an argument, ``NAME:ARG`` (``ppo:PATH.zip``; the MPCs take
-an optional one, ``vtnmpc:weights=FILE.json``).
+an optional one, ``vtnmpc:weights=FILE.json``). Any name may end in ``+filter``
+(:data:`~wt_inspect_env.policy.FILTER_SUFFIX`): the policy then flies through the safety filter
+registered as ``filter`` in the group ``wt_inspect.safety_filters``
+(:mod:`controllers.safety_filter`), which keeps d_min from the turbine whatever it commands.
 A factory takes the (unwrapped) environment and returns a policy with the common interface
 (``reset(seed=None)``, ``act(obs)``; see :mod:`wt_inspect_env.policy`).
 
@@ -25,7 +28,7 @@ from importlib.metadata import EntryPoint, entry_points
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry
+from wt_inspect_env.policy import ENTRY_POINT_GROUP, FILTER_ENTRY_POINT_GROUP, FILTER_SUFFIX, PolicyEntry
 
 from ..extras import missing_extra
 
@@ -110,6 +113,26 @@ def split_name(name: str) -> tuple[str, str | None]:
     return key, (arg if sep else None)
 
 
+def split_filter(name: str) -> tuple[str, bool]:
+    """``("ppo:x.zip", True)`` for ``"ppo:x.zip+filter"``; ``(name, False)`` without the suffix."""
+    if isinstance(name, str) and name.endswith(FILTER_SUFFIX):
+        return name[:-len(FILTER_SUFFIX)], True
+    return name, False
+
+
+@functools.cache
+def _safety_filter() -> Callable[[Any, Any], Any]:
+    """The registered safety filter ``wrap(env, policy) -> policy``; ValueError if none is."""
+    found = [ep for ep in entry_points(group=FILTER_ENTRY_POINT_GROUP) if ep.name == "filter"]
+    if not found:
+        raise ValueError(f"no safety filter is registered (entry point 'filter' of group "
+                         f"{FILTER_ENTRY_POINT_GROUP!r}); reinstall with pip install -e .")
+    wrap = found[0].load()
+    if not callable(wrap):
+        raise ValueError(f"safety filter {found[0].value} must be callable (env, policy) -> policy")
+    return wrap
+
+
 def _trust(entry: PolicyEntry, trust_model: bool) -> dict[str, bool]:
     """The ``trust_model`` keyword for an entry that takes it (see PolicyEntry.trust_option)."""
     return {"trust_model": bool(trust_model)} if entry.trust_option else {}
@@ -120,6 +143,9 @@ def check_controller(name: str, *, trust_model: bool = False) -> None:
     an entry's own ``check`` validates its argument, e.g. that a model file exists and loads
     without running code from it unless ``trust_model``). A missing optional dependency (``ppo:``
     without the ``rl`` extra) is a ValueError naming it and the extra, raised here - before any run."""
+    name, filtered = split_filter(name)
+    if filtered:
+        _safety_filter()
     key, arg = split_name(name)
     try:
         entry = _load(key)
@@ -138,29 +164,47 @@ def check_controller(name: str, *, trust_model: bool = False) -> None:
 def fingerprint(name: str) -> str:
     """What identifies the controller's behaviour for resuming: the name, plus what the entry
     says identifies its argument (a model file's content hash: a retrained ``ppo:model.zip``
-    must not reuse the old results)."""
+    must not reuse the old results), and the filter suffix."""
+    name, filtered = split_filter(name)
     key, arg = split_name(name)
     entry = _load(key)
+    suffix = FILTER_SUFFIX if filtered else ""
     if arg is None:
-        return key
-    return f"{key}:{entry.fingerprint(arg)}" if entry.fingerprint is not None else f"{key}:{arg}"
+        return key + suffix
+    return (f"{key}:{entry.fingerprint(arg)}" if entry.fingerprint is not None else f"{key}:{arg}") + suffix
 
 
 def resolve(name: str, *, trust_model: bool = False) -> PolicyFactory:
     """The factory ``env -> policy`` of a controller name (see the module docstring);
     ``trust_model``: the user's explicit consent to run code from a model file that needs it."""
     check_controller(name, trust_model=trust_model)
+    name, filtered = split_filter(name)
     key, arg = split_name(name)
     entry = _load(key)
     if arg is None:
-        return entry.factory
-    trust = _trust(entry, trust_model)
-    return lambda env: entry.factory(env, arg, **trust)
+        factory = entry.factory
+    else:
+        trust = _trust(entry, trust_model)
+        factory = functools.partial(_with_argument, entry.factory, arg, trust)
+    return functools.partial(_filtered, factory) if filtered else factory
+
+
+def _with_argument(factory: Callable[..., Any], arg: str, trust: Mapping[str, bool], env: Any) -> Any:
+    return factory(env, arg, **trust)
+
+
+def _filtered(factory: PolicyFactory, env: Any) -> Any:
+    """``factory``'s policy flown through the registered safety filter."""
+    return _safety_filter()(env, factory(env))
 
 
 def display_name(name: str) -> str:
     """Table name: the entry's display name (the paper's spelling for ours); for an entry with an
-    argument, ``PPO (model stem)``; a name that is not registered prints as it is."""
+    argument, ``PPO (model stem)``, with `` + filter`` for a filtered one; a name that is not
+    registered prints as it is."""
+    name, filtered = split_filter(name)
+    if filtered:
+        return display_name(name) + " + filter"
     base, sep, arg = name.partition(":")
     key = base.lower() if sep else base
     if key not in _entry_points():

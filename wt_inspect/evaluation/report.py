@@ -41,7 +41,10 @@ CSV_COLUMNS = ("scenario", "controller", "wind", "seed", "coverage", "safety", "
                "mean_heading_error_deg", "clearance_min_m", "clearance_body_min_m", "time_below_d_min_s", "d_min_m",
                "energy_wh", "mean_power_w", "solve_median_ms", "solve_p99_ms", "act_median_ms", "act_p99_ms",
                "termination", "mission_complete", "stalls", "skipped_path_m", "steps", "sim_time", "wall_time",
-               "run_file")
+               "run_file", "filter_intervention_fraction", "filter_mean_correction", "filter_fallbacks",
+               "filter_median_ms", "filter_p99_ms")
+#: the safety filter's columns (NaN for a run flown without it; see controllers.safety_filter)
+FILTER_COLUMNS = CSV_COLUMNS[-5:]
 PAPER_ORDER = ("nmpc", "pampc", "vtnmpc")
 
 
@@ -288,6 +291,15 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                      f"{r['collisions']} | {r['flight_time']:.0f} s | "
                      f"{_ms(r['solve_median_ms'])} / {_ms(r['solve_p99_ms'])} | {r['termination']} | "
                      f"{r['wall_time']:.0f} s |")
+    filtered = [r for r in rows if math.isfinite(float(r.get("filter_median_ms", math.nan)))]
+    if filtered:
+        lines += ["", "## Safety filter", "",
+                  "| controller | wind | seed | interventions | mean correction | fallbacks | filter median / p99 |",
+                  "|---|---:|---:|---:|---:|---:|---:|"]
+        for r in filtered:
+            lines.append(f"| {display_name(r['controller'])} | {r['wind']:g} | {r['seed']} | "
+                         f"{_pct(r['filter_intervention_fraction'])} | {r['filter_mean_correction']:.3f} | "
+                         f"{r['filter_fallbacks']:.0f} | {_ms(r['filter_median_ms'])} / {_ms(r['filter_p99_ms'])} |")
     paper_src = {"paper": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text (distances; "
                           "100 % coverage for all at 0 m/s)",
                  "paper-faithful": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text, beside "
@@ -320,6 +332,10 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
               "draw are not modelled, so compare controllers with it rather than read battery life off it. "
               "Mean power = energy / flight time; path length = sum of the distances between consecutive "
               "positions.",
+              *(["- Safety filter (controllers.safety_filter, a `+filter` controller): interventions = share of "
+                 "control steps whose action it changed (by more than 0.001 of the normalised range); mean "
+                 "correction = mean max-norm change of the normalised action; fallbacks = steps whose QP failed "
+                 "and the filter's backup plan flew; its time per step, besides the policy's own."] if filtered else []),
               f"- Hardware: {hardware()}.",
               f"- Backend: {ctx.backend}, {ctx.jobs} parallel jobs; wall time of this invocation "
               f"{ctx.wall_time_s:.0f} s ({ctx.n_ran} runs executed, {ctx.n_resumed} resumed from earlier run files)."]

@@ -447,10 +447,14 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         arrays["triangle_face"] = np.asarray(t0.triangle_face, dtype=np.int16)
         arrays["rotor_center"] = np.asarray(t0.rotor_center, dtype=np.float64)
     extra |= {"stalls": float(info["stalls"]), "skipped_path_m": float(info["skipped_m"])}
+    solve = {"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99}
+    report = getattr(getattr(policy, "stats", None), "as_dict", None)   # a safety filter's counts
+    if callable(report):
+        solve |= {k: float(v) for k, v in report().items() if k.startswith("filter_")}
     return RunResult(spec=spec, metrics=dict(info["metrics"]) | extra, termination=termination,
                      mission_complete=complete,
                      steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,
-                     solve={"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99},
+                     solve=solve,
                      d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays,
                      code=code_fingerprint())
 

@@ -8,13 +8,15 @@ covered by the layering test and run from any directory::
     wt-inspect study wind-offset  --out results/lab/wind_offset.csv
     wt-inspect study routes       --from-json --out results/training/routes
     wt-inspect study hold-check   --seconds 12             # printed; quoted in results/imitation/dagger
+    wt-inspect study safety-filter --starts 1000 --out results/safety_filter
 
 * :mod:`.closed_loop` - the model-plant closed loop (an MPC flown on the CasADi model plus the
   simulator's drag), shared with the controller tests;
 * :mod:`.sm_vs_wind` - SM against the mean wind under the authors' conditions;
 * :mod:`.wind_offset` - the lab drone's steady stand-off error against the wind's drag;
 * :mod:`.routes` - every training route to a full-mission policy on one time axis;
-* :mod:`.hold_check` - VT-NMPC+ with its decisions held like the DAgger learner's.
+* :mod:`.hold_check` - VT-NMPC+ with its decisions held like the DAgger learner's;
+* :mod:`.safety_filter` - the safety filter against policies that fly at the structure.
 """
 from __future__ import annotations
 
@@ -26,6 +28,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "wind-offset": ("wt_inspect.studies.wind_offset", "lab drone: steady stand-off error against the drag"),
     "routes": ("wt_inspect.studies.routes", "training routes to a full-mission policy, one figure"),
     "hold-check": ("wt_inspect.studies.hold_check", "VT-NMPC+ with decisions held at 25 Hz like DAgger's"),
+    "safety-filter": ("wt_inspect.studies.safety_filter", "the safety filter against adversarial policies"),
 }
 
 

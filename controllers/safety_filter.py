@@ -1,0 +1,224 @@
+"""A predictive safety filter: any policy's command, changed as little as needed to keep d_min.
+
+Every MPC here keeps the clearance d_min from the turbine through its OCP's clearance constraint
+(:func:`controllers.rti_policy.clearance_ocp`: one supporting half-space of the nearest mesh
+points per stage, tightened by the distance needed to brake at ``clearance_brake`` from the
+velocity towards it). A learned agent or a user's own controller has no such constraint. The filter
+gives it one: each control step it solves, on the same real-time-iteration core and with the same
+clearance geometry (the phase's mesh, following the mission's progress), the OCP
+
+    min  |S (u_0 - u_policy)|^2  +  eps sum_{k >= 1} |S (u_k - u_hover)|^2
+    s.t. the drone model, the input bounds, the clearance constraint at every stage,
+
+with S the map to the normalised action (so "closest" is measured in the action space the policy
+commands) and eps small. The inputs after the first are a *backup plan*: they are free to brake
+and turn away, and cost almost nothing, so the first input equals the policy's own whenever a
+backup plan exists that keeps the clearance from the state it leads to, and moves the least
+otherwise. Stage 0 and the later stages are told apart by a stage-wise parameter (1 at stage 0,
+0 after), not by a state: the RTI linearises at the shifted previous plan, whose states belong
+to the step before.
+
+The clearance constraint is the MPCs' with one addition (``clearance_reaction``, 0.3 s): a
+policy may tilt hard towards the structure, and a tilted drone needs time to turn round before it
+can brake, so for that time the constraint assumes the drone keeps its present acceleration (the
+thrust along its body axis plus gravity) and only then brakes. The ground counts as a surface too:
+where it is nearer than the turbine, its half-space z >= d_min replaces the turbine's.
+
+Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
+see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
+strong wind while a policy pulls it down can be held only just above the ground; both show as
+flights that dip below d_min without colliding.
+
+When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan),
+then hover - never the unfiltered command; :class:`SafetyFilter` counts every intervention and
+every such fallback.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, ClassVar, Mapping
+
+import casadi as ca
+import numpy as np
+
+from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
+from wt_inspect_env.policy import Policy
+
+from .rti import OCP
+from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
+
+N_PARAMS = NU + 1   # the policy's command [p, q, r, T] and the stage-0 flag
+#: a filtered action that differs from the policy's by more than this (normalised, any component)
+#: counts as an intervention
+INTERVENTION_TOL = 1e-3
+
+
+@dataclass(frozen=True)
+class FilterWeights(LSQWeights):
+    """Weights of the filter's OCP, on normalised actions: ``command`` the first input's distance
+    to the policy's, ``backup`` the later inputs' distance to hover (small: the backup plan may
+    brake freely), ``terminal_velocity`` the plan's final world velocity (0 by default)."""
+
+    command: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    backup: tuple[float, ...] = (1e-2, 1e-2, 1e-2, 1e-2)
+    terminal_velocity: float = 0.0
+    terminal_factor: float = 1.0
+
+    STAGE: ClassVar = (("command", 4), ("backup", 4))
+    TERMINAL: ClassVar = (("terminal_velocity", 3),)
+    INPUTS: ClassVar = "command"
+
+
+@dataclass(frozen=True)
+class SafetyFilterConfig(MPCConfig):
+    """The filter's OCP (the common MPC fields, clearance on; see the module docstring). The
+    weights act on normalised actions, so they are not rescaled with the stand-off."""
+
+    WEIGHTS: ClassVar[type] = FilterWeights
+    WEIGHT_SETS: ClassVar[Mapping[str, Any]] = {"default": FilterWeights()}
+
+    weights: FilterWeights | str = "default"
+    scale_weights: bool = False
+    # a policy may tilt hard towards the structure: for 0.3 s (about the time to turn a tilted
+    # drone round at the rate limit) the constraint lets it keep its acceleration before braking
+    clearance_reaction: float = 0.3
+
+
+def build_ocp(config: SafetyFilterConfig) -> OCP:
+    """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first]
+    with ``first`` 1 at stage 0 and 0 after."""
+    x = ca.SX.sym("x", NX)
+    u = ca.SX.sym("u", NU)
+    p = ca.SX.sym("p", N_PARAMS)
+    s = ca.DM(2.0 / (config.scaling.upper - config.scaling.lower))     # physical -> normalised
+    first = p[NU]
+    stage = ca.Function("safety_filter_r", [x, u, p],
+                        [ca.vertcat(first * s * (u - p[:NU]), (1.0 - first) * s * (u - ca.DM(config.hover_input)))],
+                        ["x", "u", "p"], ["r"])
+    terminal = ca.Function("safety_filter_rN", [x, p], [quat_to_rotmat(x[6:10]) @ x[3:6]], ["x", "p"], ["rN"])
+    model = QuadrotorModel(config.params)
+    dynamics = ca.Function("safety_filter_F", [x, u, p], [model.rk4_expr(x, u, config.dt, steps=config.rk4_steps)],
+                           ["x", "u", "p"], ["x_next"])
+    return config_ocp("safety_filter", config, dynamics, stage, terminal)
+
+
+class FilterMPC(RTIPolicy):
+    """The filter's OCP as an RTI policy: :meth:`filter_command` takes the policy's physical
+    command and an observation and returns the filtered one."""
+
+    config_class = SafetyFilterConfig
+
+    def __init__(self, config: SafetyFilterConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
+        if obstacles is None:
+            raise ValueError("a safety filter needs obstacles: the turbine to keep d_min from "
+                             "(a TurbineProximity or env.mission)")
+        super().__init__(config, obstacles=obstacles, **overrides)
+        self._params = np.zeros((self.config.horizon + 1, N_PARAMS))
+        self._params[:, :NU] = self.config.hover_input
+        self._params[0, NU] = 1.0
+
+    def build_ocp(self, config: SafetyFilterConfig) -> OCP:
+        return build_ocp(config)
+
+    def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray, normal_xy: np.ndarray) -> np.ndarray:
+        return self._params
+
+    def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
+        """The turbine's half-spaces (:class:`~controllers.rti_policy.RTIPolicy`), each replaced by
+        the ground's (z >= d_min + back-off) where the ground is nearer than the turbine to the
+        looked-up position."""
+        P = super()._with_clearance(params, x0)
+        pos, c = self._lookup[0], self._lookup[1]
+        ground = pos[:, 2] < np.linalg.norm(pos - c, axis=1)
+        if ground.any():
+            k = ground[self._stage_query]
+            npar, cfg = self.base_ocp.np, self.config
+            P[k, npar:npar + 3] = (0.0, 0.0, 1.0)
+            P[k, npar + 3] = cfg.d_min + cfg.clearance_backoff
+        return P
+
+    def filter_command(self, command: np.ndarray, obs: Mapping[str, Any]) -> np.ndarray:
+        """The filtered physical command for the policy's physical ``command``."""
+        self._params[:, :NU] = np.asarray(command, dtype=np.float64).reshape(NU)
+        return self.command(obs)
+
+
+def _policy_action(policy: Any, obs: Mapping[str, Any]) -> np.ndarray:
+    """The wrapped policy's normalised action: ``act(obs)``, or an SB3-style ``predict``."""
+    if callable(getattr(policy, "act", None)):
+        return np.asarray(policy.act(obs), dtype=np.float64).reshape(-1)[:NU]
+    action, _ = policy.predict(obs, deterministic=True)
+    return np.asarray(action, dtype=np.float64).reshape(-1)[:NU]
+
+
+@dataclass
+class FilterStats:
+    """What the filter did since the last reset: steps, interventions (the action changed by more
+    than :data:`INTERVENTION_TOL`), the summed |correction| (max-norm, normalised action),
+    fallbacks (QP failed: the backup plan flew) and the filter's own time per step [ms]."""
+
+    steps: int = 0
+    interventions: int = 0
+    correction_sum: float = 0.0
+    fallbacks: int = 0
+    times_ms: list[float] | None = None
+
+    def as_dict(self) -> dict[str, float]:
+        t = np.asarray(self.times_ms or [np.nan])
+        n = max(self.steps, 1)
+        return {"filter_steps": float(self.steps), "filter_interventions": float(self.interventions),
+                "filter_intervention_fraction": self.interventions / n,
+                "filter_mean_correction": self.correction_sum / n, "filter_fallbacks": float(self.fallbacks),
+                "filter_median_ms": float(np.nanmedian(t)), "filter_p99_ms": float(np.nanpercentile(t, 99))}
+
+
+class SafetyFilter(Policy):
+    """Wraps any policy (``act(obs)`` or SB3 ``predict``) so that its flight keeps d_min from the
+    turbine of ``env`` (see the module docstring): ``SafetyFilter(policy, env)``, then
+    :meth:`reset`, :meth:`act` / :meth:`predict` as for any policy; :attr:`stats` counts what it
+    changed. ``overrides``: :class:`SafetyFilterConfig` fields."""
+
+    def __init__(self, policy: Any, env: Any, **overrides: Any) -> None:
+        if not (callable(getattr(policy, "act", None)) or callable(getattr(policy, "predict", None))):
+            raise ValueError(f"the filtered policy must have act(obs) or predict(obs), got {type(policy).__name__}")
+        from wt_inspect_env.proximity import TurbineProximity
+        u = getattr(env, "unwrapped", env)
+        self.policy = policy
+        self.mpc = FilterMPC(params=u.params, d_ref=u.config.standoff, control_dt=u.dt,
+                             d_min=overrides.pop("d_min", u.config.d_min),
+                             obstacles=TurbineProximity.from_env(u), **overrides)
+        self.scaling = self.mpc.scaling
+        self.stats = FilterStats(times_ms=[])
+        self.last_policy_action: np.ndarray | None = None
+
+    @property
+    def last_stats(self) -> Any:
+        """The wrapped policy's own statistics (its solve time), for the harness."""
+        return getattr(self.policy, "last_stats", None)
+
+    def reset(self, seed: int | None = None) -> None:
+        if callable(getattr(self.policy, "reset", None)):
+            self.policy.reset(seed=seed)
+        self.mpc.reset(seed)
+        self.stats = FilterStats(times_ms=[])
+        self.last_policy_action = None
+
+    def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        a_pol = np.clip(_policy_action(self.policy, obs), -1.0, 1.0)
+        self.last_policy_action = a_pol
+        t0 = time.perf_counter()
+        out = self.mpc.action_of(self.mpc.filter_command(self.scaling.to_command(a_pol), obs))
+        st = self.stats
+        st.times_ms.append((time.perf_counter() - t0) * 1e3)
+        st.steps += 1
+        corr = float(np.abs(out - a_pol).max())
+        st.correction_sum += corr
+        st.interventions += corr > INTERVENTION_TOL
+        st.fallbacks += bool(getattr(self.mpc.last_stats, "fallback", False))
+        return out
+
+    def predict(self, obs: Mapping[str, Any], state: Any = None, episode_start: Any = None,
+                deterministic: bool = True) -> tuple[np.ndarray, None]:
+        """The SB3 interface: ``(action, None)``."""
+        return self.act(obs), None

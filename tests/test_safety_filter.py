@@ -1,0 +1,88 @@
+"""The safety filter (``controllers.safety_filter``): it leaves a safe policy alone, it keeps
+policies that fly at the structure away from it where they collide without it, it is reachable as
+``NAME+filter`` everywhere a controller name is, and the harness reports its counts."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import wt_inspect_env  # noqa: F401 - registers the env ids
+from controllers.safety_filter import SafetyFilter
+from wt_inspect.evaluation import registry
+from wt_inspect.studies import safety_filter as adv
+
+
+def test_a_policy_far_from_the_structure_flies_unchanged():
+    env = gym.make("WindTurbineInspection-v0", time_limit_s=5.0)
+    try:
+        u = env.unwrapped
+        inner = registry.resolve("vtnmpc-plus")(u)
+        raw = registry.resolve("vtnmpc-plus")(u)
+        pol = SafetyFilter(inner, env)
+        obs, _ = env.reset(seed=0)
+        pol.reset(0)
+        raw.reset(0)
+        while True:
+            a = pol.act(obs)
+            np.testing.assert_allclose(a, raw.act(obs), atol=1e-4)   # unchanged up to the QP tolerance
+            obs, _, term, trunc, _ = env.step(a)
+            if term or trunc:
+                break
+        assert pol.stats.steps == 500 and pol.stats.interventions == 0 and pol.stats.fallbacks == 0
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("name,k", [("tower", 0), ("blade", 1), ("hold-inside", 5), ("tower", 6), ("blade", 7),
+                                    ("hold-inside", 11)])
+def test_adversaries_that_collide_unfiltered_keep_d_min_filtered(name, k):
+    """Seeded recoverable starts of the adversarial study (winds: none, gusts, Dryden):
+    unfiltered these flights hit the turbine or pass well inside d_min; filtered they stay
+    above d_min - 0.1 m and never collide."""
+    w = k % len(adv.WINDS)
+    env = gym.make("WindTurbineInspection-v0", wind=adv.WINDS[w], time_limit_s=adv.SECONDS + 5.0)
+    try:
+        u = env.unwrapped
+        start = adv.draw_start(u, np.random.default_rng([0, k]), float(u.config.d_min))
+        raw = adv.fly(env, adv.ADVERSARIES[name](env), start, seed=k)
+        safe = adv.fly(env, SafetyFilter(adv.ADVERSARIES[name](env), env), start, seed=k)
+    finally:
+        env.close()
+    assert raw["collided"] or raw["min_clearance_m"] < 2.0, raw
+    assert not safe["collided"] and safe["steps_below"] == 0, safe
+    assert safe["min_clearance_m"] >= 3.0 - adv.TOLERANCE
+    assert safe["interventions"] > 0
+
+
+def test_the_filter_suffix_resolves_everywhere_a_name_does():
+    assert registry.fingerprint("vtnmpc+filter") == "vtnmpc+filter" != registry.fingerprint("vtnmpc")
+    assert registry.display_name("vtnmpc+filter") == "VT-NMPC + filter"
+    registry.check_controller("ppo:ppo_full_vec128+filter")
+    with pytest.raises(ValueError, match="unknown controller 'nope'"):
+        registry.check_controller("nope+filter")
+    env = gym.make("WindTurbineInspection-v0")
+    try:
+        pol = registry.resolve("nmpc+filter")(env.unwrapped)
+        assert isinstance(pol, SafetyFilter) and type(pol.policy).__name__ == "NMPCPolicy"
+    finally:
+        env.close()
+
+
+def test_the_harness_reports_the_filters_counts(tmp_path):
+    from wt_inspect.evaluation import run_evaluation
+    ev = run_evaluation("surface", ["vtnmpc+filter"], [4.0], out=tmp_path, jobs=1, max_time=3.0, figures=False,
+                        progress=False)
+    row = ev.results[0].row()
+    assert row["filter_intervention_fraction"] == 0.0 and row["filter_median_ms"] > 0.0
+    text = (tmp_path / "results.md").read_text()
+    assert "## Safety filter" in text and "| VT-NMPC + filter | 4 | 0 | 0.0 % |" in text
+
+
+def test_a_policy_without_act_or_predict_is_refused():
+    env = gym.make("WindTurbineInspection-v0")
+    try:
+        with pytest.raises(ValueError, match="act\\(obs\\) or predict"):
+            SafetyFilter(object(), env)
+    finally:
+        env.close()
