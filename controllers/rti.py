@@ -454,9 +454,9 @@ class RTISolver:
 
     Speed: the QP-data function and HPIPM are evaluated through CasADi ``FunctionBuffer`` objects
     bound to preallocated NumPy arrays, so no Python<->CasADi conversion happens on the hot path
-    (a single ``casadi.DM`` conversion of a 430-vector costs ~30 us on this machine, about as much
-    as the whole compiled preparation). The iterate, parameters, weights, QP data and bounds live
-    in those arrays and are only ever modified in place.
+    (a single ``casadi.DM`` conversion of a 430-vector costs about as much as the whole compiled
+    preparation; ``wt-inspect bench solver`` measures the step). The iterate, parameters,
+    weights, QP data and bounds live in those arrays and are only ever modified in place.
     """
 
     def __init__(self, ocp: OCP, stage_weights, terminal_weights,
@@ -718,7 +718,7 @@ class RTISolver:
     def _solve_qp(self) -> dict:
         """HPIPM on the arrays bound to the QP inputs/outputs; returns its statistics.
 
-        A fresh ``FunctionBuffer`` (~5 us) is made per solve: CasADi 3.8's HPIPM plugin returns
+        A fresh ``FunctionBuffer`` (cheap beside the solve) is made per solve: CasADi 3.8's HPIPM plugin returns
         the *first* solution again when one buffer is re-evaluated after its inputs changed
         (tests/test_rti.py guards this against ``Function.call``).
         """

@@ -54,6 +54,9 @@ def test_the_runs_of_a_study_are_planned_from_its_commands():
     assert {r.runner for r in camp} == {"campaign"}
     abl = behaviour.study_runs(["wt-inspect ablation --out x --task surface --winds 4 --rows 2"])
     assert {r.spec.scenario for r in abl} == {"paper-faithful-surface"} and len(abl) >= 3
+    adv = behaviour.study_runs(["wt-inspect study safety-filter --starts 3 --out x"])
+    assert [(r.runner, r.spec["start"], r.spec["filtered"]) for r in adv] == [
+        ("adversary", k, f) for k in range(3) for f in (False, True)]
     # commands that fly nothing have no digest; the first and the last run carry it
     assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
     assert [r.spec.controller for r in behaviour.digested_runs(

@@ -203,3 +203,10 @@ def test_ablation_figure_in_every_format_and_the_flag_is_checked(tmp_path, capsy
     with pytest.raises(SystemExit) as exc:
         main(["ablation", "--out", str(tmp_path / "o"), "--figure-format", "tiff"])
     assert exc.value.code == 2 and not (tmp_path / "o").exists()
+
+
+def test_the_package_version_is_the_clis():
+    """One version, written once (pyproject.toml), read from the metadata by both."""
+    import wt_inspect_env
+    from wt_inspect.cli import version
+    assert wt_inspect_env.__version__ == version() != "unknown"

@@ -18,8 +18,8 @@ that different controllers, winds or rows are covered, and the full regeneration
 (``wt-inspect reproduce --force``) remains the way to refresh a study's numbers.
 
 The runs of a study are those its commands would fly, planned from the commands themselves with
-the subcommands' own parsers (:func:`study_runs`); only ``evaluate``, ``campaign`` and
-``ablation`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
+the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
+``study safety-filter`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
 digest; its staleness is decided by the code version as before.
 """
 from __future__ import annotations
@@ -37,22 +37,26 @@ SECONDS = 20.0
 DECIMALS = 4
 #: largest difference of any sample for two digests to agree [m, m/s]
 TOLERANCE = 2e-3
-#: subcommands whose runs can be digested
-FLYING = ("evaluate", "campaign", "ablation")
 
 
 @dataclass(frozen=True)
 class StudyRun:
     """One run a study's command flies: how to fly it (``runner``: ``"evaluate"`` for the
     harness's :func:`~wt_inspect.evaluation.runner.execute`, ``"campaign"`` for a campaign
-    episode) and its run spec."""
+    episode, ``"adversary"`` for a flight of ``wt-inspect study safety-filter``) and its spec (a
+    RunSpec, or the adversarial flight's plain dict)."""
 
     runner: str
-    spec: Any   # wt_inspect.evaluation.runner.RunSpec
+    spec: Any
 
     def label(self) -> str:
         s = self.spec
+        if isinstance(s, Mapping):
+            return f"adversarial start {s['start']}{' filtered' if s['filtered'] else ''}"
         return f"{s.scenario} {s.controller} wind {s.wind:g} seed {s.seed}"
+
+    def spec_dict(self) -> dict[str, Any]:
+        return dict(self.spec) if isinstance(self.spec, Mapping) else self.spec.to_dict()
 
 
 def digest(t: np.ndarray, position: np.ndarray, velocity: np.ndarray, seconds: float = SECONDS) -> dict[str, Any]:
@@ -139,8 +143,16 @@ def _ablation_runs(argv: Sequence[str]) -> list[StudyRun]:
     return out
 
 
+def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
+    """``wt-inspect study NAME ...``: only the safety-filter study flies runs here."""
+    if not argv or argv[0] != "safety-filter":
+        return []
+    from .studies.safety_filter import planned_flights
+    return [StudyRun("adversary", f) for f in planned_flights(list(argv[1:]))]
+
+
 _PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {
-    "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs}
+    "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs, "study": _study_runs}
 
 
 def study_runs(commands: Sequence[str]) -> list[StudyRun]:
@@ -169,6 +181,9 @@ def digested_runs(commands: Sequence[str]) -> list[StudyRun]:
 def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
     """Fly the first ``seconds`` of ``run`` with the current code (no file written) and return
     its digest. ValueError if the run raised (a campaign episode reports it in its result)."""
+    if run.runner == "adversary":
+        from .studies.safety_filter import trajectory
+        return digest(*trajectory(run.spec, seconds), seconds)
     spec = replace(run.spec, max_time=seconds if run.spec.max_time is None else min(seconds, run.spec.max_time),
                    record_every=1)
     if run.runner == "campaign":
@@ -180,7 +195,7 @@ def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
         from .evaluation.runner import execute
         res = execute(spec, record=True)
     else:
-        raise ValueError(f"unknown runner {run.runner!r}; known: campaign, evaluate")
+        raise ValueError(f"unknown runner {run.runner!r}; known: adversary, campaign, evaluate")
     a = res.arrays
     return digest(a["t"], a["position"], a["velocity_body"], seconds)
 
@@ -193,7 +208,7 @@ def record(commands: Sequence[str], seconds: float = SECONDS,
     for r in digested_runs(commands):
         if progress:
             progress(r.label())
-        runs.append({"runner": r.runner, "run": r.label(), "spec": r.spec.to_dict(), "digest": fly_prefix(r, seconds)})
+        runs.append({"runner": r.runner, "run": r.label(), "spec": r.spec_dict(), "digest": fly_prefix(r, seconds)})
     return {"seconds": seconds, "decimals": DECIMALS, "tolerance": TOLERANCE, "runs": runs}
 
 

@@ -6,9 +6,15 @@ Importing this package registers the environment ids with Gymnasium.
 """
 from __future__ import annotations
 
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _dist_version
+
 from gymnasium.envs.registration import register, registry
 
-__version__ = "0.1.0"
+try:   # one version, written once in pyproject.toml; the CLI reads the same metadata
+    __version__ = _dist_version("wt-inspect")
+except PackageNotFoundError:   # a checkout that was never installed
+    __version__ = "unknown"
 
 ENV_IDS = {
     "WindTurbineInspection-v0": "full",

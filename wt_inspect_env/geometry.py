@@ -13,7 +13,7 @@ the agents (features relative to the pose), the evaluation (recorded h and d) an
   the heading of the yaw-following gimbal camera (what CM averages).
 
 :mod:`wt_inspect_env.metrics` evaluates the same h and d inline in its per-sample accumulator
-(mirrored operation for operation by its batched path, and ~2 us per sample); the tests hold it to
+(mirrored operation for operation by its batched path, and cheap enough per sample); the tests hold it to
 :func:`heading_and_distance`.
 """
 from __future__ import annotations
@@ -99,7 +99,7 @@ def _body_x_xy(quaternion) -> tuple[float, float]:
 
 def heading_and_distance(position, quaternion, point) -> tuple[float, float]:
     """The paper's heading function h (full attitude, as printed) and horizontal distance d for
-    one sample, in plain floats (~2 us: usable per control step); h = 0 when d = 0."""
+    one sample, in plain floats (usable per control step); h = 0 when d = 0."""
     ax, ay = float(point[0]) - float(position[0]), float(point[1]) - float(position[1])
     bx0, bx1 = _body_x_xy(quaternion)
     d = math.sqrt(ax * ax + ay * ay)

@@ -34,7 +34,7 @@ collisions and coverage use all samples. Samples are weighted equally (the paper
 the entire trajectory"), so record them at a fixed rate.
 
 :class:`MetricAccumulator` (incremental, used by the environment) keeps running sums, minima and
-maxima in plain floats: ``add`` costs ~10 us, ``result`` is O(1) and memory does not grow.
+maxima in plain floats: ``add`` is a few scalar updates, ``result`` is O(1) and memory does not grow.
 :func:`compute_metrics` (whole trajectories) evaluates the same per-sample formulas vectorised,
 with the same floating-point operations in the same order (explicit products instead of ``einsum``,
 sequential sums through ``np.cumsum``, ``math.atan2``/``math.acos`` per sample), so both return

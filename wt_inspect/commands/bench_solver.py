@@ -32,7 +32,9 @@ measured, not assumed. The names resolved through the registry (``rti_compiled``
 :mod:`controllers.rti_policy`); ``rti_no_clearance``, ``vtnmpc_plus_no_clearance`` and
 ``nmpc_no_clearance`` are the same without it, so its cost per step is the difference in one run.
 The ``rti_*`` solver variants built here (``rti_ahead``, ``rti_hpipm``, ...) compare QP paths on
-the VT-NMPC OCP without the constraint. The compile time of the QP-data library is measured separately, into a
+the VT-NMPC OCP without the constraint. ``vtnmpc_plus_filter`` is VT-NMPC+ flown through the
+safety filter (:mod:`controllers.safety_filter`); its extra row is the filter's own time per step,
+beside the reference and the VT-NMPC+ step of the same run. The compile time of the QP-data library is measured separately, into a
 fresh temporary cache so that it is a real compile.
 
 ``--acados-python PATH`` (the Python of a virtual environment with acados) adds the comparison
@@ -115,6 +117,8 @@ SOLVERS: dict[str, tuple[str, Callable[[], Callable[[Any], Any]]]] = {
     "nmpc_no_clearance": ("NMPC baseline, compiled RTI, without the clearance constraint",
                           lambda: _without_clearance("nmpc")),
     "pampc": ("PAMPC baseline, compiled RTI, clearance", lambda: registry.resolve("pampc")),
+    "vtnmpc_plus_filter": ("VT-NMPC+ through the safety filter (filter row: the filter's own time)",
+                           lambda: registry.resolve("vtnmpc-plus+filter")),
 }
 
 
@@ -192,6 +196,8 @@ def run_benchmark(steps: int = 500, warmup: int = 20,
                                  "setup_s": built.get("setup_s", float("nan")),
                                  "step": _summary(step_ms), "latency": _summary(latency),
                                  "coverage": res.metrics.get("coverage"), "safety": res.metrics.get("safety_sm")}
+        if "filter_median_ms" in res.solve:     # a filtered policy: the filter's own time per step
+            entry["filter"] = {"median_ms": res.solve["filter_median_ms"], "p99_ms": res.solve["filter_p99_ms"]}
         results[name] = entry
         refs.append(reference_ms())
     ref = statistics.median(refs)
@@ -200,6 +206,11 @@ def run_benchmark(steps: int = 500, warmup: int = 20,
         e = results[name]
         e["step_ratio_vs_reference"] = e["step"]["median_ms"] / ref
         e["latency_ratio_vs_reference"] = e["latency"]["median_ms"] / ref
+        if "filter" in e:
+            e["filter"]["ratio_vs_reference"] = e["filter"]["median_ms"] / ref
+            if "vtnmpc_plus" in results:
+                e["filter"]["ratio_vs_vtnmpc_plus_step"] = e["filter"]["median_ms"] / results["vtnmpc_plus"]["step"][
+                    "median_ms"]
     return results
 
 
@@ -209,7 +220,8 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
     parser.add_argument("--solvers", default="rti_compiled,rti_no_clearance,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,"
-                        "rti_uncompiled,ipopt,vtnmpc_plus,vtnmpc_plus_no_clearance,nmpc,nmpc_no_clearance,pampc",
+                        "rti_uncompiled,ipopt,vtnmpc_plus,vtnmpc_plus_no_clearance,nmpc,nmpc_no_clearance,pampc,"
+                        "vtnmpc_plus_filter",
                         help="comma-separated subset of " + ", ".join(SOLVERS))
     parser.add_argument("--acados-python", default=None, metavar="PATH",
                         help="the Python of a virtual environment with acados (comma-deps-acados): also time "
@@ -241,6 +253,12 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -
         print(f"{name:<26}{r['latency']['median_ms']:9.3f}{r['latency']['p99_ms']:8.3f}"
               f"{r['step']['median_ms']:9.3f}{r['step']['p99_ms']:8.3f}"
               f"{r['latency_ratio_vs_reference']:9.1f}{r['step_ratio_vs_reference']:9.1f}  {r['description']}")
+        if "filter" in r:
+            f = r["filter"]
+            vs = (f"; {f['ratio_vs_vtnmpc_plus_step']:.2f}x the VT-NMPC+ step" if "ratio_vs_vtnmpc_plus_step" in f
+                  else "")
+            print(f"{'  filter alone':<26}{'':>9}{'':>8}{f['median_ms']:9.3f}{f['p99_ms']:8.3f}{'':>9}"
+                  f"{f['ratio_vs_reference']:9.1f}  the safety filter's own time per step{vs}")
     print("latency = observation to command (the policy's own measurement); step = the whole act() call")
     ranked = [n for n in ("nmpc", "rti_compiled", "pampc") if n in results]
     if len(ranked) > 1:

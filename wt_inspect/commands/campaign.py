@@ -114,6 +114,9 @@ COLUMNS = ("episode", "seed", "turbine", "turbine_scale", "wind", "wind_directio
            "energy_wh", "path_length", "sim_time", "wall_time", "rss_mb", "worker", "run_file", "error")
 # The per-episode metrics whose distribution is reported: column, label, unit, scale, worse when
 # ("low" / "high").
+#: a safety filter's counts per episode (controllers.safety_filter; only for NAME+filter)
+FILTER_FIELDS = ("filter_intervention_fraction", "filter_mean_correction", "filter_fallbacks", "filter_median_ms",
+                 "filter_p99_ms")
 METRICS: tuple[tuple[str, str, str, float, str], ...] = (
     ("coverage", "coverage", "%", 100.0, "low"),
     ("safety", "SM", "%", 100.0, "low"),
@@ -365,7 +368,8 @@ def _row(draw: Mapping[str, Any], res: RunResult) -> dict[str, Any]:
             "path_length": m.get("path_length_m", math.nan),
             "sim_time": res.sim_time_s, "wall_time": res.wall_time_s, "rss_mb": res.solve.get("rss_mb", math.nan),
             "worker": int(res.solve.get("worker_pid", 0) or 0), "run_file": res.path.name if res.path else "",
-            "error": m.get("error", "")}
+            "error": m.get("error", ""),
+            **{k: res.solve[k] for k in FILTER_FIELDS if k in res.solve}}   # a NAME+filter controller
 
 
 def _f(v: Any) -> float:
@@ -418,6 +422,8 @@ def summarise(rows: Sequence[Mapping[str, Any]], d_min: float | None = None) -> 
             "start_redraws": sum(int(r.get("start_redraws", 0) or 0) for r in rows),
             "wall_time_per_episode_s": float(np.mean(wall)) if wall else math.nan,
             "terminations": {t: sum(r["termination"] == t for r in rows) for t in sorted({r["termination"] for r in rows})},
+            **({"filter": {k: distribution([r.get(k, math.nan) for r in rows]) for k in FILTER_FIELDS}}
+               if any(k in r for r in rows for k in FILTER_FIELDS) else {}),
             "distribution": {col: distribution([r[col] for r in rows]) for col, *_ in METRICS}}
 
 
@@ -537,6 +543,15 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
         f"({s['rss_slope_after_warmup_mb_per_episode']:+.3f} after its first {RSS_WARMUP_EPISODES}) | flat |",
         f"| starts redrawn (drawn within {START_CLEARANCE_RATIO:.2f} d_ref of the turbine) | {s['start_redraws']} "
         "| - |",
+        *([f"| safety filter: interventions [% of steps], median [min - max] over episodes | "
+           f"{100 * s['filter']['filter_intervention_fraction']['median']:.2f} "
+           f"[{100 * s['filter']['filter_intervention_fraction']['min']:.2f} - "
+           f"{100 * s['filter']['filter_intervention_fraction']['max']:.2f}] | - |",
+           f"| safety filter: fallbacks (QP failed, backup plan flown) | "
+           f"{s['filter']['filter_fallbacks']['mean'] * s['filter']['filter_fallbacks']['n']:.0f} in all | 0 |",
+           f"| safety filter: time per step, median of the episodes' median / p99 [ms] | "
+           f"{s['filter']['filter_median_ms']['median']:.3f} / {s['filter']['filter_p99_ms']['median']:.3f} | "
+           "<= 0.3 / 1 |"] if "filter" in s else []),
         f"| wall time | {sum(walls):.1f} s over {len(walls)} invocation(s) ("
         + ", ".join(f"{w:.1f}" for w in walls) + f" s); {s['wall_time_per_episode_s']:.1f} s per episode in a "
         "worker | - |", "",
@@ -694,7 +709,8 @@ def _report(cfg: CampaignConfig, out_dir: Path, specs: list[RunSpec], by_file: M
            "episodes": rows, "draws": [by_file[s.filename] for s in specs]}
     try:
         buf = io.StringIO()
-        w = csv.DictWriter(buf, fieldnames=COLUMNS)
+        filtered = any(k in r for r in rows for k in FILTER_FIELDS)
+        w = csv.DictWriter(buf, fieldnames=COLUMNS + FILTER_FIELDS if filtered else COLUMNS)
         w.writeheader()
         w.writerows(rows)
         write_text_atomic(out_dir / "episodes.csv", buf.getvalue())

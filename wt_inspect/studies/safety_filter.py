@@ -154,9 +154,11 @@ def draw_start(u: Any, rng: np.random.Generator, d_min: float, low: bool = False
     raise RuntimeError("no recoverable start found")
 
 
-def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SECONDS) -> dict[str, Any]:
+def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SECONDS,
+        track: list | None = None) -> dict[str, Any]:
     """One adversarial flight from ``start`` (at rest): least clearance, steps below
-    d_min - TOLERANCE, collision, and the filter's counts if ``policy`` is a SafetyFilter."""
+    d_min - TOLERANCE, collision, and the filter's counts if ``policy`` is a SafetyFilter;
+    ``track``: a list that gets (t, x, y, z, vx, vy, vz) of every step."""
     from wt_inspect_env.planner.clearance import DistanceField
     u = env.unwrapped
     fields = u.__dict__.setdefault("_adversary_fields", [DistanceField(t.mesh.triangles) for t in u.mission.turbines])
@@ -169,6 +171,8 @@ def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SE
     while True:
         obs, _, terminated, truncated, info = env.step(policy.act(obs))
         steps += 1
+        if track is not None:
+            track.append((float(info["time"]), *u.sim.state[0, 0:6]))
         x = u.sim.state[0, 0:3]
         d = float(min(fields[u.phase_index].distance(x[None], 20.0)[0], x[2]))
         least = min(least, d)
@@ -186,6 +190,43 @@ def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SE
     return out
 
 
+def flight_setup(k: int, seed: int = 0) -> tuple[str, int]:
+    """The adversary and the wind (index into :data:`WINDS`) of start ``k``."""
+    names = list(ADVERSARIES)
+    return names[k % len(names)], k % len(WINDS)
+
+
+def planned_flights(argv: list[str]) -> list[dict[str, Any]]:
+    """Every flight the command ``wt-inspect study safety-filter ARGV`` flies, in order (for the
+    behaviour digests of :mod:`wt_inspect.behaviour`)."""
+    args = build_parser().parse_args(argv)
+    return [{"start": k, "filtered": f, "seed": args.seed} for k in range(args.starts) for f in (False, True)]
+
+
+def trajectory(flight: Mapping[str, Any], seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The first ``seconds`` of one planned flight: time, position and world velocity."""
+    import gymnasium as gym
+
+    import wt_inspect_env  # noqa: F401 - registers the env ids
+    from controllers.safety_filter import SafetyFilter
+    k = int(flight["start"])
+    name, w = flight_setup(k)
+    env = gym.make("WindTurbineInspection-v0", wind=WINDS[w], time_limit_s=SECONDS + 5.0)
+    try:
+        u = env.unwrapped
+        start = draw_start(u, np.random.default_rng([int(flight.get("seed", 0)), k]), float(u.config.d_min),
+                           low=name == "ground")
+        pol = ADVERSARIES[name](env)
+        if flight["filtered"]:
+            pol = SafetyFilter(pol, env)
+        track: list = []
+        fly(env, pol, start, seed=k, seconds=min(seconds, SECONDS), track=track)
+    finally:
+        env.close()
+    a = np.asarray(track)
+    return a[:, 0], a[:, 1:4], a[:, 4:7]
+
+
 def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list[dict[str, Any]]:
     """Fly every adversary from ``starts`` starts, unfiltered and filtered (resumes from the
     chunk files in ``out/chunks``); returns every row."""
@@ -199,7 +240,6 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
     chunks.mkdir(parents=True, exist_ok=True)
     envs: dict[int, Any] = {}
     rows: list[dict[str, Any]] = []
-    names = list(ADVERSARIES)
     bar = tqdm(total=starts, desc="safety-filter starts", disable=not progress)
     try:
         for c0 in range(0, starts, CHUNK):
@@ -211,13 +251,12 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
                 continue
             got = []
             for k in range(c0, c0 + n):
-                w = k % len(WINDS)
+                name, w = flight_setup(k)
                 if w not in envs:
                     envs[w] = gym.make("WindTurbineInspection-v0", wind=WINDS[w], time_limit_s=SECONDS + 5.0)
                 env = envs[w]
                 u = env.unwrapped
                 rng = np.random.default_rng([seed, k])
-                name = names[k % len(names)]
                 start = draw_start(u, rng, float(u.config.d_min), low=name == "ground")
                 for filtered in (False, True):
                     pol = ADVERSARIES[name](env)
@@ -280,12 +319,17 @@ def markdown(s: Mapping[str, Any], starts: int, command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv: list[str], prog: str = "wt-inspect study safety-filter") -> int:
+def build_parser(prog: str = "wt-inspect study safety-filter") -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=1000, help="seeded recoverable starts (default 1000)")
     ap.add_argument("--out", default="results/safety_filter", help="output folder")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-progress", action="store_true")
+    return ap
+
+
+def main(argv: list[str], prog: str = "wt-inspect study safety-filter") -> int:
+    ap = build_parser(prog)
     args = ap.parse_args(argv)
     if args.starts < 1:
         ap.error(f"--starts must be >= 1, got {args.starts}")

@@ -302,7 +302,7 @@ class _Position:
         self.turbine = turbine if turn_deg == 0.0 else turbine.rotated(turn_deg)
         self._surfaces, self._cfg, self._frame, self._offsets = surfaces, cfg, frame, offsets
         # the rotor turn is rigid, so a surface's description turns with it; re-describing it on the
-        # turned mesh gives the same up to rounding, at ~40 ms per curved surface (done for the one
+        # turned mesh gives the same up to rounding, at a cost per curved surface (done for the one
         # position of a fixed turn, whose plans stay bit-identical to earlier versions)
         self._redescribe = redescribe
         self._R = rotation_matrix(turbine.rotor_axis, math.radians(turn_deg))
