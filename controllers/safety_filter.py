@@ -36,7 +36,7 @@ every such fallback.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar, Mapping
 
 import casadi as ca
@@ -162,7 +162,7 @@ class FilterStats:
     interventions: int = 0
     correction_sum: float = 0.0
     fallbacks: int = 0
-    times_ms: list[float] | None = None
+    times_ms: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, float]:
         t = np.asarray(self.times_ms or [np.nan])
@@ -189,7 +189,7 @@ class SafetyFilter(Policy):
                              d_min=overrides.pop("d_min", u.config.d_min),
                              obstacles=TurbineProximity.from_env(u), **overrides)
         self.scaling = self.mpc.scaling
-        self.stats = FilterStats(times_ms=[])
+        self.stats = FilterStats()
         self.last_policy_action: np.ndarray | None = None
 
     @property
@@ -201,7 +201,7 @@ class SafetyFilter(Policy):
         if callable(getattr(self.policy, "reset", None)):
             self.policy.reset(seed=seed)
         self.mpc.reset(seed)
-        self.stats = FilterStats(times_ms=[])
+        self.stats = FilterStats()
         self.last_policy_action = None
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from oracles import brute_distance
 
 from wt_inspect_env.planner.approach import APPROACH_MARGIN, ApproachRouter
-from wt_inspect_env.planner.clearance import closest_points_on_triangles, sample_polyline
+from wt_inspect_env.planner.clearance import sample_polyline
 
 
 def _box(lo, hi) -> np.ndarray:
@@ -16,15 +17,6 @@ def _box(lo, hi) -> np.ndarray:
     m = trimesh.creation.box(extents=hi - lo)
     m.apply_translation((lo + hi) / 2.0)
     return np.asarray(m.triangles)
-
-
-def _brute_clearance(points: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """Distance of each point to the nearest of all triangles, no acceleration structure."""
-    out = []
-    for p in points:
-        P = np.repeat(p[None], len(tris), axis=0)
-        out.append(np.linalg.norm(P - closest_points_on_triangles(P, tris[:, 0], tris[:, 1], tris[:, 2]), axis=1).min())
-    return np.array(out)
 
 
 # a "blade": a long thin slab standing between the start and the goal
@@ -43,11 +35,11 @@ def test_a_route_around_a_slab_keeps_d_min_plus_margin_by_brute_force(start):
     router = ApproachRouter(SLAB, AXIS, d_min=3.0, standoff=7.0)
     a, b = np.array(start), np.array([0.0, -7.0, 35.0])
     straight = sample_polyline(np.stack([a, b]), 0.05)
-    assert _brute_clearance(straight, SLAB).min() < 1.0                  # the straight line crosses it
+    assert brute_distance(straight, SLAB).min() < 1.0                  # the straight line crosses it
     route = router(a, b)
     assert 3 <= len(route) <= 4 and np.allclose(route[0], a) and np.allclose(route[-1], b)
     samples = sample_polyline(route, 0.05)
-    clear = _brute_clearance(samples, SLAB)
+    clear = brute_distance(samples, SLAB)
     assert clear.min() >= 3.0 + APPROACH_MARGIN - 0.01, clear.min()
     assert samples[:, 2].min() >= 3.0                                     # and above the ground
 
@@ -57,7 +49,7 @@ def test_ends_closer_than_the_margin_lower_the_ask_to_what_they_have():
     a, b = np.array([0.0, 3.2, 30.0]), np.array([0.0, -3.3, 35.0])        # 2.7 / 2.8 m from the slab
     route = router(a, b)
     assert len(route) >= 3
-    assert _brute_clearance(sample_polyline(route, 0.05), SLAB).min() >= 2.7 - 0.01
+    assert brute_distance(sample_polyline(route, 0.05), SLAB).min() >= 2.7 - 0.01
 
 
 def test_the_ground_is_an_obstacle():
@@ -66,7 +58,7 @@ def test_the_ground_is_an_obstacle():
     route = router(a, b)
     samples = sample_polyline(route, 0.05)
     assert samples[:, 2].min() >= min(4.0, 6.0) - 0.01
-    assert _brute_clearance(samples, SLAB).min() >= 3.0
+    assert brute_distance(samples, SLAB).min() >= 3.0
 
 
 @pytest.mark.parametrize("episode", [8, 9, 12])

@@ -10,12 +10,13 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from oracles import brute_distance
 
 import wt_inspect_env  # noqa: F401 - registers the ids
 from controllers.nmpc import NMPCConfig, NMPCPolicy
 from controllers.pampc import PAMPCPolicy
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCConfig, VTNMPCPolicy
-from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
+from wt_inspect_env.planner.clearance import DistanceField
 from wt_inspect_env.proximity import MeshProximity, TurbineProximity
 
 
@@ -28,14 +29,6 @@ def _box(center, half) -> np.ndarray:
     return v[np.array(faces)]
 
 
-def _brute_distance(tris: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    out = []
-    for p in pts:
-        P = np.repeat(p[None], len(tris), axis=0)
-        out.append(np.linalg.norm(P - closest_points_on_triangles(P, tris[:, 0], tris[:, 1], tris[:, 2]), axis=1).min())
-    return np.array(out)
-
-
 def test_closest_points_are_exact_on_the_turbine_mesh():
     env = gym.make("WindTurbineInspection-Surface-v0").unwrapped
     tris = env.mission.turbines[0].mesh.triangles
@@ -45,7 +38,7 @@ def test_closest_points_are_exact_on_the_turbine_mesh():
     pts = np.concatenate([rng.uniform(lo - 3, hi + 3, (60, 3)),
                           tris[rng.integers(len(tris), size=60)].mean(axis=1) + rng.normal(0, 2.0, (60, 3))])
     c, d, n = MeshProximity(tris).closest(pts)
-    np.testing.assert_allclose(d, _brute_distance(tris, pts), atol=1e-9)
+    np.testing.assert_allclose(d, brute_distance(pts, tris), atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(pts - c, axis=1), d, atol=1e-9)
     np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-12)
     # the direction points from the mesh to the query point

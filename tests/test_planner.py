@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
+from oracles import brute_distance
 
 from wt_inspect_env.planner import (
     HeldKarp,
@@ -46,18 +47,6 @@ def ref_point_triangle_distance(p, tri) -> float:
         t = np.clip((p - x) @ (y - x) / ((y - x) @ (y - x)), 0.0, 1.0)
         best = min(best, float(np.linalg.norm(p - (x + t * (y - x)))))
     return best
-
-
-def brute_distance(points, tris, chunk=400):
-    """min over all triangles, exhaustively (chunks of points x all triangles)."""
-    out = []
-    for s in range(0, len(points), chunk):
-        P = points[s:s + chunk]
-        Pr = np.repeat(P, len(tris), axis=0)
-        T = np.tile(tris, (len(P), 1, 1))
-        d = np.linalg.norm(Pr - closest_points_on_triangles(Pr, T[:, 0], T[:, 1], T[:, 2]), axis=1)
-        out.append(d.reshape(len(P), len(tris)).min(axis=1))
-    return np.concatenate(out)
 
 
 def brute_force_tour(ends, start, forbidden, last=None):

@@ -43,10 +43,10 @@ def test_adversaries_that_collide_unfiltered_keep_d_min_filtered(name, k):
     w = k % len(adv.WINDS)
     env = gym.make("WindTurbineInspection-v0", wind=adv.WINDS[w], time_limit_s=adv.SECONDS + 5.0)
     try:
-        u = env.unwrapped
-        start = adv.draw_start(u, np.random.default_rng([0, k]), float(u.config.d_min))
-        raw = adv.fly(env, adv.ADVERSARIES[name](env), start, seed=k)
-        safe = adv.fly(env, SafetyFilter(adv.ADVERSARIES[name](env), env), start, seed=k)
+        scene = adv.Scene(env)
+        start = adv.draw_start(scene, np.random.default_rng([0, k]))
+        raw = adv.fly(scene, adv.ADVERSARIES[name](scene), start, seed=k)
+        safe = adv.fly(scene, SafetyFilter(adv.ADVERSARIES[name](scene), env), start, seed=k)
     finally:
         env.close()
     assert raw["collided"] or raw["min_clearance_m"] < 2.0, raw

@@ -96,51 +96,34 @@ def compare(recorded: Mapping[str, Any], flown: Mapping[str, Any], tolerance: fl
 
 # ------------------------------------------------------------------ which runs a command flies
 def _evaluate_runs(argv: Sequence[str]) -> list[StudyRun]:
-    from .evaluation import SweepSpec, _floats, _seeds, plan_sweep
+    from .evaluation import sweep_specs
     from .evaluation.cli import build_parser, resolve
-    from .evaluation.scenarios import get_scenario
     kw = resolve(build_parser("wt-inspect evaluate").parse_args(list(argv))).run_kwargs()
     controllers = kw["controllers"]
     if isinstance(controllers, str):
         controllers = [c.strip() for c in controllers.split(",") if c.strip()]
-    scenario = kw.get("scenario", "paper")
-    winds = kw.get("winds")
-    sweep = SweepSpec(scenario, kw.get("wind_type", "gust"), dict(kw.get("wind_options") or {}),
-                      dict(kw.get("turbine") or {}), kw.get("drone"), dict(kw.get("env_overrides") or {}))
-    specs = plan_sweep(scenario, list(dict.fromkeys(controllers)),
-                       _floats("winds", get_scenario(scenario).winds if winds is None else winds),
-                       _seeds(kw.get("seeds", (0,))), sweep=sweep, max_time=kw.get("max_time"),
-                       record_every=kw.get("record_every", 1), trust_model=bool(kw.get("trust_model", False)))
+    specs = sweep_specs(kw["scenario"], list(dict.fromkeys(controllers)), kw["winds"], kw["seeds"],
+                        wind_type=kw["wind_type"], wind_options=kw["wind_options"], turbine=kw["turbine"],
+                        drone=kw["drone"], env_overrides=kw["env_overrides"], max_time=kw["max_time"],
+                        record_every=kw["record_every"], trust_model=bool(kw["trust_model"]))
     return [StudyRun("evaluate", s) for s in specs]
 
 
 def _campaign_runs(argv: Sequence[str]) -> list[StudyRun]:
-    from .commands.campaign import CampaignConfig, build_parser, campaign_specs
-    a = build_parser("wt-inspect campaign").parse_args(list(argv))
-    controllers = ([c.strip() for c in a.controllers.split(",") if c.strip()] if a.controllers
-                   else [a.controller or CampaignConfig().controller])
-    out = []
-    for c in dict.fromkeys(controllers):
-        cfg = CampaignConfig(episodes=a.episodes, controller=c, seed=a.seed, task=a.task, max_wind=a.max_wind,
-                             max_offset=a.max_offset, max_time=a.max_time, record_every=a.record_every,
-                             airframe_randomization=not a.no_airframe_randomization,
-                             only=tuple(int(x) for x in a.only.split(",") if x.strip()) if a.only else None)
-        out += [StudyRun("campaign", s) for s in campaign_specs(cfg)[1]]
-    return out
+    from .commands.campaign import build_parser, campaign_specs, configs_from_args
+    configs = configs_from_args(build_parser("wt-inspect campaign").parse_args(list(argv)))
+    once = {cfg.controller: cfg for cfg in configs}.values()     # a controller named twice flies once
+    return [StudyRun("campaign", s) for cfg in once for s in campaign_specs(cfg)[1]]
 
 
 def _ablation_runs(argv: Sequence[str]) -> list[StudyRun]:
     from .ablation import STEPS, TASK_SCENARIOS, _floats, build_parser, plan_rows
-    from .evaluation import SweepSpec, plan_sweep
+    from .evaluation import sweep_specs
     a = build_parser().parse_args(list(argv))
     scenario = TASK_SCENARIOS[a.task]
-    out = []
-    for row in plan_rows(STEPS[:a.rows] if a.rows else STEPS):
-        sweep = SweepSpec(scenario, "gust", {}, {}, None, dict(row["env"]))
-        specs = plan_sweep(scenario, sorted(set(row["controllers"].values())), _floats(a.winds), [0],
-                           sweep=sweep, max_time=a.max_time, record_every=1)
-        out += [StudyRun("evaluate", s) for s in specs]
-    return out
+    return [StudyRun("evaluate", s) for row in plan_rows(STEPS[:a.rows] if a.rows else STEPS)
+            for s in sweep_specs(scenario, sorted(set(row["controllers"].values())), _floats(a.winds), [0],
+                                 env_overrides=row["env"], max_time=a.max_time)]
 
 
 def _study_runs(argv: Sequence[str]) -> list[StudyRun]:

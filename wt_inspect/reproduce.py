@@ -369,8 +369,6 @@ def _record_current(root: Path, studies: list[Study], *, force: bool) -> int:
         prov = read_provenance(root, s) or {}
         if prov.get("behaviour") and not force:
             continue
-        if prov.get("behaviour"):
-            prov = {k: v for k, v in prov.items() if k != "behaviour"}
         why = "" if prov.get("code") == code_version(s, fp) and prov.get("complete") and \
             list(prov.get("commands", [])) == list(s.commands) else "not current by its code version"
         if why:

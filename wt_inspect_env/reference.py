@@ -486,8 +486,8 @@ class BatchedReference:
             return False
         start = np.asarray(start, dtype=float)
         goal = self.ideal[i].copy()
-        if not math.isfinite(float(np.linalg.norm(start - goal))) or \
-                float(np.linalg.norm(start - goal)) <= cfg.stop_threshold:
+        gap = float(np.linalg.norm(start - goal))
+        if not math.isfinite(gap) or gap <= cfg.stop_threshold:
             return False
         route = np.stack([start, goal]) if router is None else np.asarray(router(start, goal), dtype=float)
         if route.ndim != 2 or route.shape[1] != 3 or not 2 <= len(route) <= APPROACH_MAX \

@@ -940,22 +940,30 @@ def _int_list(text: str, what: str) -> tuple[int, ...]:
         raise ValueError(f"{what} must be comma-separated episode numbers, got {text!r}") from None
 
 
+def configs_from_args(args: argparse.Namespace) -> list[CampaignConfig]:
+    """One campaign configuration per controller the parsed command line names, in its order
+    (ValueError for a bad combination)."""
+    if args.controller and args.controllers:
+        raise ValueError("give --controller or --controllers, not both")
+    controllers = ([c.strip() for c in args.controllers.split(",") if c.strip()] if args.controllers
+                   else [args.controller or CampaignConfig().controller])
+    if not controllers:
+        raise ValueError(f"--controllers names no controller: {args.controllers!r}")
+    only = _int_list(args.only, "--only") if args.only is not None else None
+    return [CampaignConfig(episodes=args.episodes, controller=c, seed=args.seed, task=args.task,
+                           max_wind=args.max_wind, max_offset=args.max_offset, max_time=args.max_time,
+                           record_every=args.record_every, airframe_randomization=not args.no_airframe_randomization,
+                           only=only) for c in controllers]
+
+
 def _main(argv: list[str], prog: str) -> int:
     args = build_parser(prog).parse_args(argv)
     from ..evaluation import command_line
     backend = "ray" if args.ray else args.backend
     try:
-        if args.controller and args.controllers:
-            raise ValueError("give --controller or --controllers, not both")
-        controllers = ([c.strip() for c in args.controllers.split(",") if c.strip()] if args.controllers
-                       else [args.controller or CampaignConfig().controller])
-        if not controllers:
-            raise ValueError(f"--controllers names no controller: {args.controllers!r}")
-        cfg = CampaignConfig(episodes=args.episodes, controller=controllers[0], seed=args.seed, task=args.task,
-                             max_wind=args.max_wind, max_offset=args.max_offset, max_time=args.max_time,
-                             record_every=args.record_every,
-                             airframe_randomization=not args.no_airframe_randomization,
-                             only=_int_list(args.only, "--only") if args.only is not None else None)
+        configs = configs_from_args(args)
+        cfg = configs[0]
+        controllers = [c.controller for c in configs]
         kw = {"backend": backend, "jobs": args.jobs, "address": args.address, "progress": not args.no_progress,
               "figure": not args.no_figure, "command": command_line(argv, prog)}
         if len(set(controllers)) > 1:

@@ -165,6 +165,20 @@ def plan_sweep(scenario: str, controllers: Sequence[str], winds: Sequence[float]
     return specs
 
 
+def sweep_specs(scenario: str, controllers: Sequence[str], winds: Sequence[float] | None, seeds: Sequence[int], *,
+                wind_type: str = "gust", wind_options: Mapping[str, Any] | None = None,
+                turbine: Mapping[str, Any] | None = None, drone: str | None = None,
+                env_overrides: Mapping[str, Any] | None = None, max_time: float | None = None,
+                record_every: int = 1, custom: Iterable[str] = (), trust_model: bool = False) -> list[RunSpec]:
+    """The run specs :func:`run_evaluation` flies for these arguments (``winds`` None: the
+    scenario's), in table order; what ``wt-inspect reproduce`` plans its behaviour digests from."""
+    winds_l = _floats("winds", get_scenario(scenario).winds if winds is None else winds)
+    sweep = SweepSpec(scenario, wind_type, dict(wind_options or {}), dict(turbine or {}), drone,
+                      dict(env_overrides or {}))
+    return plan_sweep(scenario, list(controllers), winds_l, _seeds(seeds), sweep=sweep, max_time=max_time,
+                      record_every=record_every, custom=custom, trust_model=trust_model)
+
+
 def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping[str, Any] = ("vtnmpc", "nmpc", "pampc"),
                    winds: Sequence[float] | None = None, seeds: Sequence[int] = (0,), *,
                    out: str | os.PathLike, backend: str = "local", jobs: int | None = None,
@@ -188,7 +202,7 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
     CLI's ``--trust-model``; without it such a file is refused before any run starts).
     """
     t0 = time.perf_counter()
-    sc = get_scenario(scenario)
+    get_scenario(scenario)              # an unknown scenario is refused before anything else
     check_figure_format(figure_format)
     if backend not in BACKENDS:
         raise ValueError(f"unknown backend {backend!r}; valid: {', '.join(BACKENDS)}")
@@ -211,12 +225,9 @@ def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping
         labels, factories = list(dict.fromkeys(controllers)), {}
     if not labels:
         raise ValueError(f"no controllers given; valid: {registry.valid_names()}")
-    winds_l = _floats("winds", sc.winds if winds is None else winds)
-    seeds_l = _seeds(seeds)
-    sweep = SweepSpec(scenario, wind_type, dict(wind_options or {}), dict(turbine or {}), drone,
-                      dict(env_overrides or {}))
-    specs = plan_sweep(scenario, labels, winds_l, seeds_l, sweep=sweep, max_time=max_time,
-                       record_every=record_every, custom=factories, trust_model=trust_model)
+    specs = sweep_specs(scenario, labels, winds, seeds, wind_type=wind_type, wind_options=wind_options,
+                        turbine=turbine, drone=drone, env_overrides=env_overrides, max_time=max_time,
+                        record_every=record_every, custom=factories, trust_model=trust_model)
     if backend == "ray":   # before the output directory is made: a missing Ray leaves nothing behind
         import_ray()
         if address:

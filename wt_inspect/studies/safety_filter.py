@@ -40,13 +40,35 @@ FIELDS = ("start", "adversary", "wind", "filtered", "min_clearance_m", "steps_be
           "interventions", "fallbacks", "filter_median_ms", "filter_p99_ms")
 
 
+class Scene:
+    """One environment of the study and its turbine geometry, built once and reused by every
+    flight in it: the exact distance field of each rotor position's collision mesh (the clearance
+    measured) and, on first use, its nearest-point structure (the adversaries' targets)."""
+
+    def __init__(self, env: Any) -> None:
+        from wt_inspect_env.planner.clearance import DistanceField
+        self.env = env
+        self.u = env.unwrapped
+        self.fields = [DistanceField(t.mesh.triangles) for t in self.u.mission.turbines]
+        self._near: dict[int, Any] = {}
+
+    def nearest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest point of the active rotor position's collision mesh and the outward direction."""
+        from wt_inspect_env.proximity import MeshProximity
+        i = self.u.phase_index
+        if i not in self._near:
+            self._near[i] = MeshProximity(self.u.mission.turbines[i].mesh.triangles)
+        c, _, n = self._near[i].closest(p[None])
+        return c[0], n[0]
+
+
 class FlyAt:
     """Accelerate at a target as hard as the airframe allows (a geometric attitude controller on
-    the env's body-rate and thrust commands); ``target(obs, env) -> (3,)``."""
+    the env's body-rate and thrust commands); ``target(obs, scene) -> (3,)``."""
 
-    def __init__(self, env: Any, target: Callable[[Mapping[str, Any], Any], np.ndarray], gain: float = 4.0,
+    def __init__(self, scene: Scene, target: Callable[[Mapping[str, Any], Scene], np.ndarray], gain: float = 4.0,
                  damping: float = 1.0, a_max: float = 9.0) -> None:
-        self.u = getattr(env, "unwrapped", env)
+        self.scene, self.u = scene, scene.u
         self.target, self.gain, self.damping, self.a_max = target, gain, damping, a_max
 
     def reset(self, seed: int | None = None) -> None:
@@ -58,7 +80,7 @@ class FlyAt:
         p, q = np.asarray(obs["position"], float), np.asarray(obs["quaternion"], float)
         R = quat_to_rotmat_np(q)
         v = R @ np.asarray(obs["velocity_body"], float)
-        a = self.gain * (self.target(obs, u) - p) - self.damping * v
+        a = self.gain * (self.target(obs, self.scene) - p) - self.damping * v
         n = float(np.linalg.norm(a))
         if n > self.a_max:
             a *= self.a_max / n
@@ -76,7 +98,7 @@ class FlyAt:
 class RandomActions:
     """Uniform random actions (seeded at reset)."""
 
-    def __init__(self, env: Any) -> None:
+    def __init__(self, scene: Scene) -> None:
         self.rng = np.random.default_rng(0)
 
     def reset(self, seed: int | None = None) -> None:
@@ -86,62 +108,49 @@ class RandomActions:
         return self.rng.uniform(-1.0, 1.0, 4).astype(np.float32)
 
 
-def _nearest(u: Any, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest point of the active rotor position's collision mesh and the outward direction."""
-    from wt_inspect_env.proximity import MeshProximity
-    key = ("_adv_prox", u.phase_index)
-    cache = u.__dict__.setdefault("_adversary_cache", {})
-    if key not in cache:
-        cache[key] = MeshProximity(u.mission.turbines[u.phase_index].mesh.triangles)
-    c, d, n = cache[key].closest(p[None])
-    return c[0], n[0]
+def _tower(obs: Mapping[str, Any], scene: Scene) -> np.ndarray:
+    spec = scene.u.mission.turbines[0].spec
+    x, y = spec.position if spec is not None else (0.0, 0.0)
+    return np.array([x, y, float(obs["position"][2])])
 
 
-def _tower(obs: Mapping[str, Any], u: Any) -> np.ndarray:
-    base = np.asarray(u.mission.turbines[0].spec.position if hasattr(u.mission.turbines[0], "spec")
-                      and hasattr(u.mission.turbines[0].spec, "position") else [0.0, 0.0, 0.0], float)
-    p = np.asarray(obs["position"], float)
-    return np.array([base[0], base[1], p[2]])
-
-
-def _blade(obs: Mapping[str, Any], u: Any) -> np.ndarray:
-    c, n = _nearest(u, np.asarray(obs["position"], float))
+def _blade(obs: Mapping[str, Any], scene: Scene) -> np.ndarray:
+    c, n = scene.nearest(np.asarray(obs["position"], float))
     return c - 2.0 * n                              # aim through the surface
 
 
-def _hub(obs: Mapping[str, Any], u: Any) -> np.ndarray:
-    return np.asarray(u.mission.turbines[u.phase_index].rotor_center, float)
+def _hub(obs: Mapping[str, Any], scene: Scene) -> np.ndarray:
+    return np.asarray(scene.u.mission.turbines[scene.u.phase_index].rotor_center, float)
 
 
-def _ground(obs: Mapping[str, Any], u: Any) -> np.ndarray:
+def _ground(obs: Mapping[str, Any], scene: Scene) -> np.ndarray:
     p = np.asarray(obs["position"], float)
     return np.array([p[0], p[1], -10.0])
 
 
-def _inside(obs: Mapping[str, Any], u: Any) -> np.ndarray:
-    c, n = _nearest(u, np.asarray(obs["position"], float))
+def _inside(obs: Mapping[str, Any], scene: Scene) -> np.ndarray:
+    c, n = scene.nearest(np.asarray(obs["position"], float))
     return c + 1.5 * n                              # a pose 1.5 m off the surface: inside d_min
 
 
-ADVERSARIES: dict[str, Callable[[Any], Any]] = {
-    "tower": lambda env: FlyAt(env, _tower),
-    "blade": lambda env: FlyAt(env, _blade),
-    "hub": lambda env: FlyAt(env, _hub),
-    "ground": lambda env: FlyAt(env, _ground),
+ADVERSARIES: dict[str, Callable[[Scene], Any]] = {
+    "tower": lambda scene: FlyAt(scene, _tower),
+    "blade": lambda scene: FlyAt(scene, _blade),
+    "hub": lambda scene: FlyAt(scene, _hub),
+    "ground": lambda scene: FlyAt(scene, _ground),
     "random": RandomActions,
-    "hold-inside": lambda env: FlyAt(env, _inside, gain=1.5, damping=1.5, a_max=4.0),
+    "hold-inside": lambda scene: FlyAt(scene, _inside, gain=1.5, damping=1.5, a_max=4.0),
 }
 
 
-def draw_start(u: Any, rng: np.random.Generator, d_min: float, low: bool = False) -> np.ndarray:
+def draw_start(scene: Scene, rng: np.random.Generator, low: bool = False) -> np.ndarray:
     """A start position at rest, at least d_min + START_MARGIN from the turbine (and above the
     ground by as much), at most 12 m from it, within the turbine's box grown by 12 m; ``low``:
     at most 15 m above the ground (for the ground adversary)."""
-    from wt_inspect_env.planner.clearance import DistanceField
-    field = DistanceField(u.mission.turbines[0].mesh.triangles)
-    lo, hi = u.mission.turbines[0].mesh.bounds
+    field = scene.fields[0]
+    lo, hi = scene.u.mission.turbines[0].mesh.bounds
     lo, hi = lo - 12.0, hi + 12.0
-    need = d_min + START_MARGIN
+    need = float(scene.u.config.d_min) + START_MARGIN
     for _ in range(10_000):
         p = rng.uniform(lo, hi)
         if low:
@@ -154,14 +163,12 @@ def draw_start(u: Any, rng: np.random.Generator, d_min: float, low: bool = False
     raise RuntimeError("no recoverable start found")
 
 
-def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SECONDS,
+def fly(scene: Scene, policy: Any, start: np.ndarray, seed: int, seconds: float = SECONDS,
         track: list | None = None) -> dict[str, Any]:
     """One adversarial flight from ``start`` (at rest): least clearance, steps below
     d_min - TOLERANCE, collision, and the filter's counts if ``policy`` is a SafetyFilter;
     ``track``: a list that gets (t, x, y, z, vx, vy, vz) of every step."""
-    from wt_inspect_env.planner.clearance import DistanceField
-    u = env.unwrapped
-    fields = u.__dict__.setdefault("_adversary_fields", [DistanceField(t.mesh.triangles) for t in u.mission.turbines])
+    env, u, fields = scene.env, scene.u, scene.fields
     obs, info = env.reset(seed=seed)
     offset = (np.asarray(start, float) - np.asarray(obs["position"], float)).tolist()
     obs, info = env.reset(seed=seed, options={"start_offset": offset})
@@ -190,7 +197,7 @@ def fly(env: Any, policy: Any, start: np.ndarray, seed: int, seconds: float = SE
     return out
 
 
-def flight_setup(k: int, seed: int = 0) -> tuple[str, int]:
+def flight_setup(k: int) -> tuple[str, int]:
     """The adversary and the wind (index into :data:`WINDS`) of start ``k``."""
     names = list(ADVERSARIES)
     return names[k % len(names)], k % len(WINDS)
@@ -203,24 +210,30 @@ def planned_flights(argv: list[str]) -> list[dict[str, Any]]:
     return [{"start": k, "filtered": f, "seed": args.seed} for k in range(args.starts) for f in (False, True)]
 
 
+def _start(scene: Scene, k: int, seed: int) -> np.ndarray:
+    """Start ``k``'s position (low for the ground adversary)."""
+    return draw_start(scene, np.random.default_rng([seed, k]), low=flight_setup(k)[0] == "ground")
+
+
+def _policy(scene: Scene, k: int, filtered: bool) -> Any:
+    """Start ``k``'s adversary, through the safety filter if ``filtered``."""
+    from controllers.safety_filter import SafetyFilter
+    pol = ADVERSARIES[flight_setup(k)[0]](scene)
+    return SafetyFilter(pol, scene.env) if filtered else pol
+
+
 def trajectory(flight: Mapping[str, Any], seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The first ``seconds`` of one planned flight: time, position and world velocity."""
     import gymnasium as gym
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
-    from controllers.safety_filter import SafetyFilter
     k = int(flight["start"])
-    name, w = flight_setup(k)
-    env = gym.make("WindTurbineInspection-v0", wind=WINDS[w], time_limit_s=SECONDS + 5.0)
+    env = gym.make("WindTurbineInspection-v0", wind=WINDS[flight_setup(k)[1]], time_limit_s=SECONDS + 5.0)
     try:
-        u = env.unwrapped
-        start = draw_start(u, np.random.default_rng([int(flight.get("seed", 0)), k]), float(u.config.d_min),
-                           low=name == "ground")
-        pol = ADVERSARIES[name](env)
-        if flight["filtered"]:
-            pol = SafetyFilter(pol, env)
+        scene = Scene(env)
         track: list = []
-        fly(env, pol, start, seed=k, seconds=min(seconds, SECONDS), track=track)
+        fly(scene, _policy(scene, k, bool(flight["filtered"])), _start(scene, k, int(flight.get("seed", 0))),
+            seed=k, seconds=min(seconds, SECONDS), track=track)
     finally:
         env.close()
     a = np.asarray(track)
@@ -234,11 +247,10 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
     from tqdm import tqdm
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
-    from controllers.safety_filter import SafetyFilter
     from wt_inspect_env.atomic_io import write_text_atomic
     chunks = out / "chunks"
     chunks.mkdir(parents=True, exist_ok=True)
-    envs: dict[int, Any] = {}
+    scenes: dict[int, Scene] = {}
     rows: list[dict[str, Any]] = []
     bar = tqdm(total=starts, desc="safety-filter starts", disable=not progress)
     try:
@@ -252,26 +264,21 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
             got = []
             for k in range(c0, c0 + n):
                 name, w = flight_setup(k)
-                if w not in envs:
-                    envs[w] = gym.make("WindTurbineInspection-v0", wind=WINDS[w], time_limit_s=SECONDS + 5.0)
-                env = envs[w]
-                u = env.unwrapped
-                rng = np.random.default_rng([seed, k])
-                start = draw_start(u, rng, float(u.config.d_min), low=name == "ground")
+                if w not in scenes:
+                    scenes[w] = Scene(gym.make("WindTurbineInspection-v0", wind=WINDS[w],
+                                               time_limit_s=SECONDS + 5.0))
+                scene = scenes[w]
+                start = _start(scene, k, seed)
                 for filtered in (False, True):
-                    pol = ADVERSARIES[name](env)
-                    if filtered:
-                        pol = SafetyFilter(pol, env)
-                    row = {"start": k, "adversary": name, "wind": json.dumps(WINDS[w]), "filtered": filtered,
-                           **fly(env, pol, start, seed=k)}
-                    got.append(row)
+                    got.append({"start": k, "adversary": name, "wind": json.dumps(WINDS[w]), "filtered": filtered,
+                                **fly(scene, _policy(scene, k, filtered), start, seed=k)})
                 bar.update(1)
             write_text_atomic(path, json.dumps(got) + "\n")
             rows += got
     finally:
         bar.close()
-        for env in envs.values():
-            env.close()
+        for scene in scenes.values():
+            scene.env.close()
     return rows
 
 
