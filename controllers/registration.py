@@ -30,19 +30,27 @@ a weights file of the controller's :class:`~controllers.rti_policy.LSQWeights` c
 :meth:`~controllers.rti_policy.LSQWeights.load`; the fields it leaves out keep the entry's own set,
 the later tuning for ``vtnmpc-later``), checked before any run and fingerprinted by its content, so
 a changed file is a different run when an evaluation resumes. ``wt-inspect tune`` writes such files.
+The argument may instead (or also, joined by ``:``) set ``damping=X``, a Levenberg-Marquardt damping
+of the real-time iteration (:func:`damped_solver`): ``vtnmpc:damping=1``,
+``pampc:weights=best.json:damping=1``.
 
 The VT-NMPC keeps its 0.01 s shooting interval at any control rate (``control_dt`` is the
 environment's period), as the paper's 200 Hz loop ran a 30 x 0.01 s horizon.
 """
 from __future__ import annotations
 
+import dataclasses
 import hashlib
+import math
 import json
+from pathlib import Path
 from typing import Any, Callable
 
 from wt_inspect_env.policy import PolicyEntry
 
-WEIGHTS_ARGUMENT = "weights=FILE"
+MPC_ARGUMENT = "weights=FILE|damping=X[:...]"
+#: the options an MPC entry's argument may set (``OPTION=VALUE`` parts joined by ``:``)
+MPC_OPTIONS = ("weights", "damping")
 
 
 def _weights_class(kind: str) -> tuple[type, Any]:
@@ -63,11 +71,38 @@ def _weights_class(kind: str) -> tuple[type, Any]:
     raise ValueError(f"no weights class for {kind!r}")   # pragma: no cover - a registration bug
 
 
+def parse_mpc_argument(arg: str) -> dict[str, str]:
+    """``{"weights": FILE, "damping": X}`` (either or both) from an MPC entry's argument
+    ``weights=FILE``, ``damping=X`` or ``weights=FILE:damping=X``; one-line ValueError naming the
+    bad part otherwise (unknown option, repeated option, missing value, a damping that is not a
+    finite number >= 0)."""
+    out: dict[str, str] = {}
+    for part in arg.split(":"):
+        key, sep, value = part.partition("=")
+        key = key.strip()
+        if not sep or not value:
+            raise ValueError(f"argument must be OPTION=VALUE parts joined by ':' ({MPC_ARGUMENT}), got {arg!r} "
+                             f"(part {part!r} is not OPTION=VALUE)")
+        if key not in MPC_OPTIONS:
+            raise ValueError(f"unknown MPC option {key!r} in argument {arg!r}; valid: {', '.join(MPC_OPTIONS)}")
+        if key in out:
+            raise ValueError(f"MPC option {key!r} given twice in argument {arg!r}")
+        if key == "damping":
+            try:
+                x = float(value)
+            except ValueError:
+                x = float("nan")
+            if not math.isfinite(x) or x < 0:
+                raise ValueError(f"damping must be a finite number >= 0, got {value!r}")
+        out[key] = value
+    return out
+
+
 def weights_path(arg: str) -> str:
-    """The file of an MPC entry's argument ``weights=FILE``; one-line ValueError otherwise."""
+    """The file of an MPC entry's argument ``weights=FILE`` (alone); one-line ValueError otherwise."""
     key, sep, path = arg.partition("=")
     if key.strip() != "weights" or not sep or not path:
-        raise ValueError(f"argument must be {WEIGHTS_ARGUMENT}, got {arg!r}")
+        raise ValueError(f"argument must be weights=FILE, got {arg!r}")
     return path
 
 
@@ -77,20 +112,61 @@ def load_entry_weights(kind: str, arg: str) -> Any:
     return cls.load(weights_path(arg), base=base)
 
 
+def damped_solver(damping: float) -> Any:
+    """The MPCs' default solver options with the real-time iteration damped by ``damping``
+    (:attr:`~controllers.rti.RTIOptions.regularization`, a Levenberg-Marquardt term on the
+    Gauss-Newton Hessian in the solver's units). Why an option: a full Gauss-Newton step per
+    control period does not settle on every problem - on the lab scenario's scaled OCP the rate
+    commands alternate between their bounds from one step to the next (``results/lab``) - and
+    damping the step is the standard remedy; on the paper-scale problems it slows the tracking,
+    so the default stays undamped."""
+    from .rti_policy import MPCConfig
+    default = {f.name: f for f in dataclasses.fields(MPCConfig)}["solver"].default_factory()
+    return dataclasses.replace(default, regularization=float(damping))
+
+
+def mpc_options(kind: str, arg: str) -> dict[str, Any]:
+    """The policy options of an MPC entry's argument (see :func:`parse_mpc_argument`)."""
+    parts = parse_mpc_argument(arg)
+    options: dict[str, Any] = {}
+    if "weights" in parts:
+        options["weights"] = load_entry_weights(kind, "weights=" + parts["weights"])
+    if "damping" in parts:
+        options["solver"] = damped_solver(float(parts["damping"]))
+    return options
+
+
+def mpc_label(arg: str) -> str:
+    """How a table names an MPC entry's argument: the weights file's stem and/or ``damping X``."""
+    parts = parse_mpc_argument(arg)
+    shown = [Path(parts["weights"]).stem] if "weights" in parts else []
+    if "damping" in parts:
+        shown.append(f"damping {parts['damping']}")
+    return ", ".join(shown)
+
+
 def _weights_entry(kind: str, build: Callable[..., Any], description: str, display_name: str) -> PolicyEntry:
-    """An MPC entry that works plain (its own weights) or with ``weights=FILE``."""
+    """An MPC entry that works plain (its own weights, undamped) or with the argument
+    ``weights=FILE``, ``damping=X`` or both (:func:`parse_mpc_argument`)."""
     def factory(env: Any, arg: str | None = None) -> Any:
-        return build(env) if arg is None else build(env, weights=load_entry_weights(kind, arg))
+        return build(env) if arg is None else build(env, **mpc_options(kind, arg))
 
     def check(arg: str) -> None:
-        load_entry_weights(kind, arg)
+        mpc_options(kind, arg)
 
     def fingerprint(arg: str) -> str:   # the weights' values, not the file's name or layout
-        data = json.dumps(load_entry_weights(kind, arg).to_dict(), sort_keys=True)
-        return "weights=" + hashlib.sha256(data.encode()).hexdigest()[:16]
+        parts = parse_mpc_argument(arg)
+        out = []
+        if "weights" in parts:
+            w = load_entry_weights(kind, "weights=" + parts["weights"])
+            data = json.dumps(w.to_dict(), sort_keys=True)
+            out.append("weights=" + hashlib.sha256(data.encode()).hexdigest()[:16])
+        if "damping" in parts:
+            out.append(f"damping={float(parts['damping'])!r}")
+        return ":".join(out)
 
     return PolicyEntry(factory, description, display_name=display_name,
-                       check=check, fingerprint=fingerprint, optional_argument=WEIGHTS_ARGUMENT)
+                       check=check, fingerprint=fingerprint, optional_argument=MPC_ARGUMENT, label=mpc_label)
 
 
 def _turbine(env: Any) -> Any:

@@ -77,14 +77,50 @@ def test_registry_accepts_weights_argument_and_fingerprints_the_values(tmp_path)
     c = _write(tmp_path, {"heading": 101.0}, "c.json")
     roi = _write(tmp_path, {"roi": 1.0}, "roi.json")             # a VT-NMPC field the PAMPC does not have
     registry.check_controller(f"vtnmpc:weights={a}")
-    assert "vtnmpc[:weights=FILE]" in registry.valid_names()
+    assert "vtnmpc[:weights=FILE|damping=X[:...]]" in registry.valid_names()
     fp = registry.fingerprint
     assert fp(f"vtnmpc:weights={a}") == fp(f"vtnmpc:weights={b}") != fp(f"vtnmpc:weights={c}")
     assert fp(f"vtnmpc:weights={a}") != fp(f"nmpc:weights={a}") and fp("vtnmpc") == "vtnmpc"
-    for name, msg in [(f"vtnmpc:heading={a}", "argument must be weights=FILE"),
+    for name, msg in [(f"vtnmpc:heading={a}", "unknown MPC option 'heading'"),
                       ("vtnmpc:", "needs an argument"), (f"pampc:weights={roi}", "unknown field 'roi'")]:
         with pytest.raises(ValueError, match=msg):
             registry.check_controller(name)
+
+
+def test_damping_argument_is_checked_named_and_fingerprinted(tmp_path):
+    """``damping=X`` alone or after ``weights=FILE``: its value is part of the fingerprint (a
+    resumed evaluation does not reuse an undamped run), the table names it, and a bad value or a
+    repeated option is a one-line error naming it."""
+    a = _write(tmp_path, {"heading": 100.0}, "a.json")
+    fp = registry.fingerprint
+    assert fp("vtnmpc:damping=1") == fp("vtnmpc:damping=1.0") != fp("vtnmpc:damping=0.5") != fp("vtnmpc")
+    both = f"vtnmpc:weights={a}:damping=1"
+    registry.check_controller(both)
+    assert fp(both).startswith(fp(f"vtnmpc:weights={a}") + ":")
+    assert registry.display_name(both) == "VT-NMPC (a, damping 1)"
+    assert registry.display_name("nmpc:damping=1+filter") == "NMPC (damping 1) + filter"
+    for name, msg in [("vtnmpc:damping=-1", "damping must be a finite number >= 0, got '-1'"),
+                      ("vtnmpc:damping=nan", "damping must be a finite number >= 0"),
+                      ("vtnmpc:damping=1:damping=2", "'damping' given twice"),
+                      ("vtnmpc:damping", "part 'damping' is not OPTION=VALUE")]:
+        with pytest.raises(ValueError, match=msg):
+            registry.check_controller(name)
+
+
+def test_damping_builds_the_controller_with_only_the_regularization_changed():
+    import dataclasses
+
+    import gymnasium as gym
+
+    import wt_inspect_env  # noqa: F401 - registers the env ids
+    env = gym.make("WindTurbineInspection-Surface-v0")
+    try:
+        plain = registry.resolve("nmpc")(env.unwrapped).config.solver
+        damped = registry.resolve("nmpc:damping=0.25")(env.unwrapped).config.solver
+        assert plain.regularization == 0.0 and damped.regularization == 0.25
+        assert dataclasses.replace(damped, regularization=0.0) == plain
+    finally:
+        env.close()
 
 
 def test_weights_file_builds_the_controller(tmp_path):

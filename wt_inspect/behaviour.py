@@ -19,7 +19,7 @@ that different controllers, winds or rows are covered, and the full regeneration
 
 The runs of a study are those its commands would fly, planned from the commands themselves with
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
-``study safety-filter`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
+``study safety-filter`` / ``study pose-sweep`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
 digest; its staleness is decided by the code version as before.
 """
 from __future__ import annotations
@@ -127,11 +127,14 @@ def _ablation_runs(argv: Sequence[str]) -> list[StudyRun]:
 
 
 def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
-    """``wt-inspect study NAME ...``: only the safety-filter study flies runs here."""
-    if not argv or argv[0] != "safety-filter":
-        return []
-    from .studies.safety_filter import planned_flights
-    return [StudyRun("adversary", f) for f in planned_flights(list(argv[1:]))]
+    """``wt-inspect study NAME ...``: the safety-filter and pose-sweep studies fly runs here."""
+    if argv and argv[0] == "safety-filter":
+        from .studies.safety_filter import planned_flights
+        return [StudyRun("adversary", f) for f in planned_flights(list(argv[1:]))]
+    if argv and argv[0] == "pose-sweep":
+        from .studies.pose_sweep import planned_specs
+        return [StudyRun("evaluate", s) for s in planned_specs(list(argv[1:]))]
+    return []
 
 
 _PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {

@@ -139,7 +139,8 @@ class PolicyEntry:
     what makes the argument's behaviour unique (a model file's content hash), so a changed model
     is a different run. An entry with ``optional_argument`` (the argument's form for help, e.g.
     ``"weights=FILE"``) works both plain (``factory(env)``) and as ``NAME:ARG`` (``factory(env, arg)``,
-    with ``check`` and ``fingerprint`` as above). An entry with ``trust_option`` loads files that might carry code: its
+    with ``check`` and ``fingerprint`` as above); ``label(arg)``, if given, is how a results table names
+    the argument (default: the stem of a file path). An entry with ``trust_option`` loads files that might carry code: its
     ``factory`` and ``check`` take the keyword ``trust_model`` and run code from such a file only
     when it is True (the user's explicit ``--trust-model``); otherwise they refuse it.
     """
@@ -152,6 +153,7 @@ class PolicyEntry:
     fingerprint: Callable[[str], str] | None = None
     trust_option: bool = False
     optional_argument: str | None = None
+    label: Callable[[str], str] | None = None
 
     def __post_init__(self) -> None:
         if not callable(self.factory):

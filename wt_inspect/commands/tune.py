@@ -89,7 +89,7 @@ class TuneConfig:
         if isinstance(self.controller, str) and ":" in self.controller:
             raise ValueError(f"--controller {self.controller!r}: give the plain name; tune writes the weights files")
         entry = registry.entries().get(self.controller)
-        if entry is None or entry.optional_argument != "weights=FILE":
+        if entry is None or not takes_weights_file(entry):
             what = "takes no weights file" if entry is not None else "is not a registered controller"
             raise ValueError(f"--controller {self.controller!r} {what}; tunable: {', '.join(tunable())}")
         get_scenario(self.scenario)
@@ -116,9 +116,15 @@ class TuneConfig:
         return self.study or f"{self.controller}-{self.scenario}"
 
 
+def takes_weights_file(entry: Any) -> bool:
+    """Whether a registry entry's optional argument is (or starts with) ``weights=FILE``: the MPCs',
+    which tune can write and re-read."""
+    return (entry.optional_argument or "").startswith("weights=FILE")
+
+
 def tunable() -> list[str]:
     """The registered controllers that take a weights file (the MPCs)."""
-    return [n for n, e in registry.entries().items() if e.optional_argument == "weights=FILE"]
+    return [n for n, e in registry.entries().items() if takes_weights_file(e)]
 
 
 def check_storage(url: str) -> None:

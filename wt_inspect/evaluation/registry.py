@@ -211,4 +211,6 @@ def display_name(name: str) -> str:
         return name
     entry = _load(key)
     shown = entry.display_name or key
-    return f"{shown} ({Path(arg).stem})" if sep and arg else shown
+    if not (sep and arg):
+        return shown
+    return f"{shown} ({entry.label(arg) if entry.label is not None else Path(arg).stem})"
