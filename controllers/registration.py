@@ -41,8 +41,8 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
-import math
 import json
+import math
 from pathlib import Path
 from typing import Any, Callable
 

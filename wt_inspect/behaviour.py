@@ -19,8 +19,8 @@ that different controllers, winds or rows are covered, and the full regeneration
 
 The runs of a study are those its commands would fly, planned from the commands themselves with
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
-``study safety-filter`` / ``study pose-sweep`` fly runs here. A study whose commands fly nothing (training, tuning, analyses) has no
-digest; its staleness is decided by the code version as before.
+``study safety-filter`` / ``study pose-sweep`` fly runs here. A study whose commands fly nothing
+(training, tuning, analyses) has no digest; its staleness is decided by the code version as before.
 """
 from __future__ import annotations
 

@@ -128,9 +128,12 @@ def markdown(rows: Sequence[Mapping[str, Any]], command: str, d_min: float) -> s
         ok = [r for r in mine if not shortfalls(r, d_min)]
         cov = sorted(float(r["coverage"]) for r in mine)
         clr = min(float(r["clearance_min_m"]) for r in mine)
+        done = sum(r["complete"] for r in mine)
+        hits = sum(int(r["collisions"] or 0) for r in mine)
+        stalls = sum(int(r["stalls"] or 0) for r in mine)
         lines += [f"## {c}", "",
-                  f"{len(ok)} of {len(mine)} missions meet every target; completed {sum(r['complete'] for r in mine)}; "
-                  f"collisions {sum(int(r['collisions'] or 0) for r in mine)}; stalls {sum(int(r['stalls'] or 0) for r in mine)}; "
+                  f"{len(ok)} of {len(mine)} missions meet every target; completed {done}; "
+                  f"collisions {hits}; stalls {stalls}; "
                   f"coverage min {100 * cov[0]:.1f} %, median {100 * cov[len(cov) // 2]:.1f} %; least clearance "
                   f"{clr:.2f} m.", "",
                   "Coverage [%] by rotor azimuth (rows) and facing (columns):", ""]
