@@ -24,7 +24,7 @@ from wt_inspect_env.planner.config import PlannerConfig
 from wt_inspect_env.quadrotor import get_preset
 from wt_inspect_env.rate_control import RateGains
 from wt_inspect_env.reference import ReferenceConfig
-from wt_inspect_env.sim import SimConfig
+from wt_inspect_env.sim_config import SimConfig
 from wt_inspect_env.spaces import ActionScaling
 from wt_inspect_env.turbine import MeshLoadOptions, TurbineSpec
 from wt_inspect_env.validation import _field_kinds, check_array, check_finite

@@ -15,7 +15,8 @@ from wt_inspect_env.dynamics import hover_state
 from wt_inspect_env.flight_core import FlightCore
 from wt_inspect_env.quadrotor import get_preset
 from wt_inspect_env.rate_control import Mixer, RateController, RateGains
-from wt_inspect_env.sim import QuadrotorSim, SimConfig, SubstepConstants
+from wt_inspect_env.sim import QuadrotorSim
+from wt_inspect_env.sim_config import SimConfig, SubstepConstants
 from wt_inspect_env.turbine import build_turbine
 from wt_inspect_env.wind import GustWind
 

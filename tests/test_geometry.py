@@ -80,7 +80,7 @@ def test_the_simulator_integrates_the_same_drag_coefficients():
     """The simulator's per-sub-step drag constants are the parameters' drag coefficients (the
     one drag model, :func:`drag_force`), bit for bit."""
     from wt_inspect_env.rate_control import Mixer
-    from wt_inspect_env.sim import SimConfig, SubstepConstants
+    from wt_inspect_env.sim_config import SimConfig, SubstepConstants
     for name in ("matrice100", "lab250"):
         p = get_preset(name)
         k = SubstepConstants.of(p, SimConfig(), Mixer(p))

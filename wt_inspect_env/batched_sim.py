@@ -29,7 +29,6 @@ from .quadrotor import QuadrotorParams
 from .scene_visuals import create_chunks, load_texture, show_chunks
 from .sim import (
     DRONE_COLLISION_GROUP,
-    SimConfig,
     _mesh_arrays,
     checked_plant,
     checked_state,
@@ -37,6 +36,7 @@ from .sim import (
     new_client,
     place_body,
 )
+from .sim_config import SimConfig
 from .wind import WindBatch, WindField
 
 GROUND_GROUP = 1

@@ -15,12 +15,12 @@ from typing import Any, Mapping
 import numpy as np
 
 from .camera import CameraConfig
-from .flight_core import INTEGRATORS
 from .planner.config import CLEARANCE_BRAKE, D_MIN_RATIO, PAPER_ROTOR_TURN_DEG
 from .quadrotor import QuadrotorParams, get_preset
 from .randomization import coerce_randomization
 from .reference import MODES as REFERENCE_MODES
 from .reference import ON_STALL as REFERENCE_ON_STALL
+from .sim_config import INTEGRATORS
 from .turbine import TurbineSpec
 from .validation import (
     check_array,

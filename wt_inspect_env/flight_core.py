@@ -7,7 +7,7 @@ through all physics sub-steps of a control step in one call into ``flight_core.c
 
 * the controller side (rate PID with anti-windup, desaturating mixer, first-order motor lag,
   relative-airspeed drag) is the same arithmetic as :class:`~wt_inspect_env.rate_control.RateController`,
-  :class:`~wt_inspect_env.rate_control.Mixer` and :class:`~wt_inspect_env.sim.SubstepConstants`,
+  :class:`~wt_inspect_env.rate_control.Mixer` and :class:`~wt_inspect_env.sim_config.SubstepConstants`,
   which remain the readable reference (tests compare them step by step);
 * the rigid body is integrated with the step Bullet applies to a free multibody base (semi-implicit
   Euler, gyroscopic term, exponential-map quaternion update, Bullet's velocity clamp), so a
@@ -39,11 +39,11 @@ import numpy as np
 from .native_cache import load_c_source
 from .quadrotor import GRAVITY, QuadrotorParams
 from .rate_control import Mixer, RateController, RateGains
+from .sim_config import SimConfig, SubstepConstants
 
 _SOURCE_NAME = "flight_core.c"
 _ABI = 2
 _LOCK = threading.Lock()
-INTEGRATORS = ("compiled", "bullet")   # SimConfig.integrator: this core (+ PyBullet near contacts), or PyBullet alone
 MAX_COORDINATE_VELOCITY = 100.0    # Bullet clamps every velocity component to this [m/s, rad/s]
 
 _D = ctypes.c_double
@@ -91,14 +91,13 @@ class FlightCore:
 
     ``params`` is the nominal airframe (the controller side: rate gains, the rate loop's inertia,
     the mixer) and every drone's plant until :meth:`set_plant`; ``config`` a
-    :class:`~wt_inspect_env.sim.SimConfig`. Arrays are allocated once and written in place, so
+    :class:`~wt_inspect_env.sim_config.SimConfig`. Arrays are allocated once and written in place, so
     views of them stay valid: ``pos``, ``vel``, ``omega`` (n, 3; world frame), ``quat`` (n, 4;
     x, y, z, w), ``rotor`` (n, 4; rotor thrusts before the plant's thrust factor).
     """
 
-    def __init__(self, params: QuadrotorParams, config: Any, n: int,
+    def __init__(self, params: QuadrotorParams, config: SimConfig, n: int,
                  cache_dir: str | os.PathLike | None = None) -> None:
-        from .sim import SubstepConstants  # the per-sub-step constants' one home
         self._constants = SubstepConstants
         self.params, self.config, self.n = params, config, int(n)
         self._lib = load_library(cache_dir)

@@ -13,14 +13,29 @@ episode goes on); a subclass that adds a reason appends its name (see :meth:`cod
 """
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 
 from .step_terms import observations, reward_terms, termination_codes
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .world import InspectionWorld
+
+class WorldView(Protocol):
+    """What the hooks read of the world they are called with (the
+    :class:`~wt_inspect_env.world.InspectionWorld` is the one that calls them). Named structurally so
+    that the world, which holds and calls the hooks, is not imported back by them."""
+
+    config: Any
+    sim: Any
+    reference: Any
+    dt: float
+    n_triangles: int
+    hover_action: np.ndarray
+    volume_lo: np.ndarray
+    volume_hi: np.ndarray
+
+    @property
+    def coverage(self) -> np.ndarray: ...
 
 TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 
@@ -41,14 +56,14 @@ class TaskHooks:
             self.termination_names.append(name)
         return self.termination_names.index(name)
 
-    def observations(self, world: "InspectionWorld", safe: np.ndarray) -> dict[str, np.ndarray]:
+    def observations(self, world: WorldView, safe: np.ndarray) -> dict[str, np.ndarray]:
         """The Dict observation of every drone, ``(N, k)`` float32 entries (see :mod:`.spaces`);
         rows flagged in ``safe`` (non-finite states) must still lie inside the observation space."""
         s = world.reference.sample
         return observations(world.sim.state, world.sim.body_rates, s.point, s.normal, s.velocity,
                             world.coverage, s.progress, safe=safe)
 
-    def rewards(self, world: "InspectionWorld", actions: np.ndarray, n_new: np.ndarray,
+    def rewards(self, world: WorldView, actions: np.ndarray, n_new: np.ndarray,
                 terminated: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Reward per drone and its named terms (``info["reward_terms"]``) for the normalised
         ``actions`` (N, 4), the triangles each drone saw for the first time and who terminated."""
@@ -56,7 +71,7 @@ class TaskHooks:
         return reward_terms(world.config.reward, world.dt, world.n_triangles, actions, world.hover_action,
                             world.sim.state, s.ideal_position, s.point, n_new, terminated)
 
-    def terminations(self, world: "InspectionWorld", state: np.ndarray, finite: np.ndarray,
+    def terminations(self, world: WorldView, state: np.ndarray, finite: np.ndarray,
                      collision: np.ndarray) -> np.ndarray:
         """Termination code per drone (0: goes on): a non-finite state, a collision, leaving the
         working volume or, with ``pose_error_limit``, straying from the stand-off pose (not while

@@ -31,9 +31,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 import pybullet as p
 
-from .flight_core import INTEGRATORS, FlightCore  # noqa: F401 - INTEGRATORS re-exported
+from .flight_core import FlightCore
 from .proximity import MeshProximity
 from .quadrotor import QuadrotorParams
+from .sim_config import SimConfig
 
 CONTACT_TOL = 1e-3       # Bullet keeps points a little beyond touching; count only real contact
 _MARGIN = 0.1            # [m] beyond the box's sphere and the reach: Bullet's collision margins
@@ -52,7 +53,7 @@ class DroneIntegrator:
     without a ground. :meth:`set_obstacle` gives drone ``i`` its turbine's proximity structure.
     """
 
-    def __init__(self, params: QuadrotorParams, config: Any, cid: int, bodies: Sequence[int],
+    def __init__(self, params: QuadrotorParams, config: SimConfig, cid: int, bodies: Sequence[int],
                  masks: Sequence[int], ground_height: float | None, drone_group: int) -> None:
         self.params, self.config = params, config
         self.n = n = len(bodies)

@@ -11,13 +11,21 @@ geometrically, not from these images.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 import pybullet as p
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .env import WindTurbineInspectionEnv
+
+class RenderedEnv(Protocol):
+    """What :func:`render_views` reads of an environment (a
+    :class:`~wt_inspect_env.env.WindTurbineInspectionEnv`): its simulator, gimbal camera and
+    configuration. Named structurally so that rendering, which the environment calls, does not
+    import the environment back."""
+
+    sim: Any
+    camera: Any
+    config: Any
 
 VIEW_W, VIEW_H = 320, 240
 
@@ -87,7 +95,7 @@ def camera_images(sim, camera, state: np.ndarray, resolution: tuple[int, int], f
             metric_depth(buf, far) if depth else None)
 
 
-def render_views(env: "WindTurbineInspectionEnv") -> np.ndarray:
+def render_views(env: RenderedEnv) -> np.ndarray:
     """(240, 640, 3) uint8: onboard camera (left) and chase view (right)."""
     env.sim.show_obstacle_chunks(True)     # the chase view sees the whole turbine
     env.sim.sync_scene()                   # ... and the drone's body where the drone is

@@ -38,7 +38,7 @@ from .mission import Mission, build_mission
 from .randomization import RandomizationDraw, noisy_state
 from .randomization import draw as draw_randomization
 from .reference import BatchedReference, InspectionReference, ReferenceConfig
-from .sim import SimConfig
+from .sim_config import SimConfig
 from .spaces import ActionScaling
 from .step_terms import REWARD_TERMS
 from .wind import WindField, make_wind

@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 
 from ..dynamics import hover_state
-from ..integration import INTEGRATORS
 from ..quadrotor import PRESETS, get_preset
-from ..sim import QuadrotorSim, SimConfig
+from ..sim import QuadrotorSim
+from ..sim_config import INTEGRATORS, SimConfig
 from ..wind import WIND_TYPES, make_wind
 from .timing_reference import raw_pybullet_rate
 
