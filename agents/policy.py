@@ -28,10 +28,10 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.policy import Policy, check_observation
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_choice
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.validation import check_choice
 
 from .safe_load import load_sb3_model, resolve_model_path, save_vecnormalize, vecnormalize_path, verify_shipped
 from .wrappers import (

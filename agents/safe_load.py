@@ -36,7 +36,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 MANIFEST_NAME = "MANIFEST.json"
