@@ -98,7 +98,6 @@ class FlightCore:
 
     def __init__(self, params: QuadrotorParams, config: SimConfig, n: int,
                  cache_dir: str | os.PathLike | None = None) -> None:
-        self._constants = SubstepConstants
         self.params, self.config, self.n = params, config, int(n)
         self._lib = load_library(cache_dir)
         n = self.n
@@ -144,7 +143,7 @@ class FlightCore:
         """Drone ``i``'s physics follow ``plant`` (validated by the caller) with rotor thrusts
         times ``thrust_scale``; the controller side keeps the nominal ``params``."""
         mixer = self.mixer if plant is self.params else Mixer(plant)
-        k = self._constants.of(plant, self.config, mixer)
+        k = SubstepConstants.of(plant, self.config, mixer)   # the per-sub-step constants' one home
         self.mass[i] = plant.mass
         self.inertia[i] = plant.inertia
         self.alpha[i], self.beta[i] = k.alpha, k.beta
