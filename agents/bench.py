@@ -27,8 +27,8 @@ import time
 
 import numpy as np
 
-from wt_inspect_env.env_config import TASKS
-from wt_inspect_env.validation import check_choice
+from wt_inspect_env.task.env_config import TASKS
+from wt_inspect_env.util.validation import check_choice
 
 from .policy import ALGOS
 

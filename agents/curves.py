@@ -9,8 +9,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, save_and_close
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, save_and_close
 
 
 def _smooth(y: np.ndarray, window: int) -> np.ndarray:

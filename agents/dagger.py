@@ -46,9 +46,9 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import atomic_path, write_text_atomic
 from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry, check_observation
-from wt_inspect_env.validation import check_positive, check_unknown_options
+from wt_inspect_env.util.atomic_io import atomic_path, write_text_atomic
+from wt_inspect_env.util.validation import check_positive, check_unknown_options
 
 from .imitation import (
     actor_parameters,

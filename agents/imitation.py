@@ -30,8 +30,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.validation import check_positive
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.validation import check_positive
 
 from .wrappers import AgentSpec, FeatureEncoder
 

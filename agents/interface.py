@@ -16,8 +16,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+from wt_inspect_env.task.spaces import ActionScaling
 
 
 def camera_heading(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[float, float]:

@@ -28,12 +28,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
 from wt_inspect_env.policy import Policy, check_observation
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_choice
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.validation import check_choice
 
-from .safe_load import load_sb3_model, save_vecnormalize, vecnormalize_path, verify_shipped
+from .safe_load import load_sb3_model, resolve_model_path, save_vecnormalize, vecnormalize_path, verify_shipped
 from .wrappers import (
     AgentObservationEnv,
     AgentSpec,
@@ -199,7 +199,6 @@ def agent_env(env, path: str | Path) -> AgentObservationEnv:
     ``action_repeat`` control steps (rewards summed). The model itself can be loaded with
     ``load_sb3_policy(algo, path).model`` (no code from the file runs) or with SB3's
     ``PPO.load(path)`` (which unpickles)."""
-    from .registration import resolve_model_path
     zip_path = resolve_model_path(str(path))
     doc = load_sidecar(zip_path)
     spec = AgentSpec.from_dict(doc["spec"])

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from wt_inspect_env.env_config import EnvConfig
-from wt_inspect_env.validation import check_choice, check_positive, check_unknown_options
-from wt_inspect_env.wind import make_wind
+from wt_inspect_env.physics.wind import make_wind
+from wt_inspect_env.task.env_config import EnvConfig
+from wt_inspect_env.util.validation import check_choice, check_positive, check_unknown_options
 
 from .policy import ALGOS
 from .safe_load import ACTIVATIONS

@@ -10,28 +10,11 @@ unpickling is refused (:mod:`agents.safe_load`), already by ``check`` before any
 from __future__ import annotations
 
 import hashlib
-from pathlib import Path
 from typing import Any
 
 from wt_inspect_env.policy import PolicyEntry
 
-from .safe_load import MODELS_DIR, verify_shipped
-
-
-def shipped_models() -> list[str]:
-    """Names of the models shipped in ``agents/models`` (``ppo:NAME`` loads one)."""
-    return sorted(p.stem for p in MODELS_DIR.glob("*.zip"))
-
-
-def resolve_model_path(arg: str) -> Path:
-    """``arg`` as a model file: a path to an existing file, or the name of a shipped model
-    (``ppo_surface`` -> ``agents/models/ppo_surface.zip``)."""
-    p = Path(arg)
-    if p.is_file():
-        return p
-    if p.suffix != ".zip" and len(p.parts) == 1 and (MODELS_DIR / f"{arg}.zip").is_file():
-        return MODELS_DIR / f"{arg}.zip"
-    raise ValueError(f"model {arg!r} is neither a file nor a shipped model; shipped: {', '.join(shipped_models())}")
+from .safe_load import resolve_model_path, verify_shipped
 
 
 def _check(algo: str):

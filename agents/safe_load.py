@@ -36,7 +36,7 @@ from collections import deque
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
-from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 MODELS_DIR = Path(__file__).resolve().parent / "models"
 MANIFEST_NAME = "MANIFEST.json"
@@ -47,6 +47,22 @@ LEGACY_VECNORM_SUFFIX = ".vecnormalize.pkl"
 _ACTIVATION_CLASSES: dict[str, str] = {"tanh": "Tanh", "relu": "ReLU", "elu": "ELU", "leaky_relu": "LeakyReLU"}
 ACTIVATIONS: tuple[str, ...] = tuple(_ACTIVATION_CLASSES)   # the names a recipe may give (torch.nn classes)
 TRUST_HINT = "pass --trust-model (trust_model=True) only if you trust whoever made the file: it runs code from it"
+
+def shipped_models() -> list[str]:
+    """Names of the models shipped in ``agents/models`` (``ppo:NAME`` loads one)."""
+    return sorted(p.stem for p in MODELS_DIR.glob("*.zip"))
+
+
+def resolve_model_path(arg: str) -> Path:
+    """``arg`` as a model file: a path to an existing file, or the name of a shipped model
+    (``ppo_surface`` -> ``agents/models/ppo_surface.zip``)."""
+    p = Path(arg)
+    if p.is_file():
+        return p
+    if p.suffix != ".zip" and len(p.parts) == 1 and (MODELS_DIR / f"{arg}.zip").is_file():
+        return MODELS_DIR / f"{arg}.zip"
+    raise ValueError(f"model {arg!r} is neither a file nor a shipped model; shipped: {', '.join(shipped_models())}")
+
 
 class UnsafeModelError(ValueError):
     """A model file that could only be loaded by running code from it (unpickling)."""

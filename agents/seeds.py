@@ -22,8 +22,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.ray_session import check_ray_address, import_ray, init_ray
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.ray_session import check_ray_address, import_ray, init_ray
 
 from .curves import draw_targets, read_evaluations
 
@@ -310,5 +310,5 @@ def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "pn
     if axes[1].get_legend_handles_labels()[0]:
         axes[1].legend(fontsize=7)
     fig.tight_layout()
-    from wt_inspect_env.figure_io import save_and_close
+    from wt_inspect_env.util.figure_io import save_and_close
     return save_and_close(fig, path, fmt)

@@ -5,10 +5,10 @@ import argparse
 import json
 import sys
 
-from wt_inspect_env.atomic_io import check_out_dir
-from wt_inspect_env.env_config import TASKS
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
-from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
+from wt_inspect_env.task.env_config import TASKS
+from wt_inspect_env.util.atomic_io import check_out_dir
+from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
+from wt_inspect_env.util.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
 
 from .policy import ALGOS
 

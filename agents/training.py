@@ -38,11 +38,11 @@ import gymnasium as gym
 import numpy as np
 
 import wt_inspect_env
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.env_config import TASKS
-from wt_inspect_env.figure_io import check_figure_format
-from wt_inspect_env.interrupts import interrupts_deferred
-from wt_inspect_env.validation import check_choice
+from wt_inspect_env.task.env_config import TASKS
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.figure_io import check_figure_format
+from wt_inspect_env.util.interrupts import interrupts_deferred
+from wt_inspect_env.util.validation import check_choice
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
 from .recipe import Recipe, default_recipe_path, load_recipe

@@ -21,7 +21,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 from gymnasium import spaces
 
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.task.spaces import ActionScaling
 
 from .interface import BatchedDecoder, BatchedFeatures
 from .wrappers import AgentSpec, ShapingConfig
@@ -78,8 +78,8 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
         """stable-baselines3 VecEnv of agent decisions over the native vector env (module docstring)."""
 
         def __init__(self) -> None:
-            from wt_inspect_env.env_config import TASKS
-            from wt_inspect_env.validation import check_choice
+            from wt_inspect_env.task.env_config import TASKS
+            from wt_inspect_env.util.validation import check_choice
             from wt_inspect_env.vector import WindTurbineInspectionVectorEnv
 
             check_choice("task", task, TASKS)

@@ -74,8 +74,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_array, check_choice, check_positive, check_unknown_options
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.util.validation import check_array, check_choice, check_positive, check_unknown_options
 
 from .interface import BatchedDecoder, BatchedFeatures, camera_heading  # noqa: F401 - camera_heading re-exported
 

@@ -32,9 +32,9 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.camera import CameraConfig
-from wt_inspect_env.dynamics import NU, quat_to_rotmat
-from wt_inspect_env.geometry import facing_yaw
+from wt_inspect_env.physics.dynamics import NU, quat_to_rotmat
+from wt_inspect_env.scene.camera import CameraConfig
+from wt_inspect_env.task.geometry import facing_yaw
 
 from .nmpc import NMPCConfig, NMPCWeights
 from .pampc import PAMPCPolicy, smooth_depth

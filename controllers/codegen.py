@@ -10,7 +10,7 @@ version. The source is the problem (horizon, model parameters, residuals and con
 in it), so any change to the problem gives a new key and a stale library can never be loaded.
 
 A cached library is native code that runs in this process the moment it is loaded, so it goes
-through the guarded library cache of :mod:`wt_inspect_env.native_cache` (private directory,
+through the guarded library cache of :mod:`wt_inspect_env.util.native_cache` (private directory,
 digest checked before every load, atomic builds), which the HPIPM shim and the simulator's flight
 core use too.
 
@@ -32,7 +32,7 @@ from pathlib import Path
 import casadi as ca
 
 # The guarded library cache lives with the simulator, which compiles its flight core through it too.
-from wt_inspect_env.native_cache import (  # noqa: F401
+from wt_inspect_env.util.native_cache import (  # noqa: F401
     CACHE_DIR_MODE,
     CACHE_ENV,
     DIGEST_SUFFIX,

@@ -58,9 +58,9 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.camera import CameraConfig
-from wt_inspect_env.dynamics import NX, quat_to_rotmat
-from wt_inspect_env.validation import check_positive
+from wt_inspect_env.physics.dynamics import NX, quat_to_rotmat
+from wt_inspect_env.scene.camera import CameraConfig
+from wt_inspect_env.util.validation import check_positive
 
 from .rti import OCP
 from .rti_policy import LSQWeights, MPCConfig

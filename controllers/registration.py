@@ -172,7 +172,7 @@ def _weights_entry(kind: str, build: Callable[..., Any], description: str, displ
 def _turbine(env: Any) -> Any:
     """The turbine the MPCs keep ``d_min`` from: the mission's collision mesh of every rotor
     position (the geometry the simulator collides the drone with)."""
-    from wt_inspect_env.proximity import TurbineProximity
+    from wt_inspect_env.planner.proximity import TurbineProximity
     return TurbineProximity.from_env(env)
 
 

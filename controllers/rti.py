@@ -43,7 +43,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.validation import check_array, check_choice, check_field_types, check_positive
+from wt_inspect_env.util.validation import check_array, check_choice, check_field_types, check_positive
 
 from .codegen import CompiledFunction, compile_function, uncompiled
 

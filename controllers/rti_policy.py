@@ -2,7 +2,7 @@
 
 :class:`RTIPolicy` owns everything that is the same for the VT-NMPC, the NMPC and the PAMPC - and
 for the next MPC: building the solver (real-time iteration or IPOPT), reset, weights switched
-without recompiling, the horizontal-normal fallback (:class:`~wt_inspect_env.geometry.HorizontalNormal`),
+without recompiling, the horizontal-normal fallback (:class:`~wt_inspect_env.task.geometry.HorizontalNormal`),
 keyword overrides of the configuration, the quaternion sign alignment, the warm-start shift for the
 control period, the preparation/feedback schedule and the statistics. A subclass provides only
 
@@ -29,7 +29,7 @@ state constraint dx_0 = x_measured - x_0, while parameters are set before the pr
 lag by one step, as in acados; estimators fed by the measurement update at the next feedback and
 reach the QP one step later). ``last_stats.latency_ms`` is observation to command either way.
 
-Clearance. Given the turbine (``obstacles``, a :class:`~wt_inspect_env.proximity.TurbineProximity`;
+Clearance. Given the turbine (``obstacles``, a :class:`~wt_inspect_env.planner.proximity.TurbineProximity`;
 the registered factories pass the environment's mission geometry), every MPC on this base keeps a
 minimum distance ``d_min`` to the mesh (default 3/7 d_ref: 3 m at the paper's 7 m stand-off). At
 each step the nearest mesh point c_k and the outward direction n_k are found for stages of the
@@ -89,15 +89,15 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
-from wt_inspect_env.env_config import D_MIN_RATIO
-from wt_inspect_env.geometry import HorizontalNormal
+from wt_inspect_env.physics.dynamics import NX, quat_to_rotmat, quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import GRAVITY, QuadrotorParams, get_preset
 from wt_inspect_env.planner.config import CLEARANCE_BRAKE
+from wt_inspect_env.planner.proximity import TurbineProximity
 from wt_inspect_env.policy import Policy, check_observation, state_from_observation
-from wt_inspect_env.proximity import TurbineProximity
-from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams, get_preset
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_choice, check_field_types, check_positive
+from wt_inspect_env.task.env_config import D_MIN_RATIO
+from wt_inspect_env.task.geometry import HorizontalNormal
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.util.validation import check_choice, check_field_types, check_positive
 
 from .rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver, SolveStats
 

@@ -42,7 +42,7 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
+from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
 from wt_inspect_env.policy import Policy
 
 from .rti import OCP
@@ -182,7 +182,7 @@ class SafetyFilter(Policy):
     def __init__(self, policy: Any, env: Any, **overrides: Any) -> None:
         if not (callable(getattr(policy, "act", None)) or callable(getattr(policy, "predict", None))):
             raise ValueError(f"the filtered policy must have act(obs) or predict(obs), got {type(policy).__name__}")
-        from wt_inspect_env.proximity import TurbineProximity
+        from wt_inspect_env.planner.proximity import TurbineProximity
         u = getattr(env, "unwrapped", env)
         self.policy = policy
         self.mpc = FilterMPC(params=u.params, d_ref=u.config.standoff, control_dt=u.dt,

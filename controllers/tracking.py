@@ -54,10 +54,10 @@ from typing import Any, Callable, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
-from wt_inspect_env.geometry import facing_yaw, standoff_position
-from wt_inspect_env.quadrotor import QuadrotorParams
-from wt_inspect_env.validation import check_array, check_finite
+from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
+from wt_inspect_env.physics.quadrotor import QuadrotorParams
+from wt_inspect_env.task.geometry import facing_yaw, standoff_position
+from wt_inspect_env.util.validation import check_array, check_finite
 
 from .rti import OCP
 from .rti_policy import MPCConfig, RTIPolicy, config_ocp
@@ -145,7 +145,7 @@ class TrackingReference:
 
 def standoff_reference(point: np.ndarray, normal_xy: np.ndarray, point_velocity: np.ndarray,
                        d_ref: float) -> TrackingReference:
-    """The paper's baseline reference: the stand-off pose (:mod:`wt_inspect_env.geometry`), the
+    """The paper's baseline reference: the stand-off pose (:mod:`wt_inspect_env.task.geometry`), the
     point's velocity, and the yaw that faces the surface."""
     return TrackingReference(tuple(standoff_position(point, normal_xy, d_ref)),
                              tuple(np.asarray(point_velocity, dtype=float)), facing_yaw(normal_xy))

@@ -55,9 +55,9 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
-from wt_inspect_env.quadrotor import GRAVITY
-from wt_inspect_env.validation import check_choice, check_positive
+from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import GRAVITY
+from wt_inspect_env.util.validation import check_choice, check_positive
 
 from .rti import OCP
 from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp

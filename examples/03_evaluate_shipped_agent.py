@@ -12,7 +12,7 @@ import gymnasium as gym
 
 import wt_inspect_env  # noqa: F401 - registers the environment ids
 from agents.policy import agent_env, load_sb3_policy
-from agents.registration import resolve_model_path, shipped_models
+from agents.safe_load import resolve_model_path, shipped_models
 from wt_inspect.evaluation import evaluate_policy
 
 print("shipped agents:", ", ".join(shipped_models()))

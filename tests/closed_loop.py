@@ -17,14 +17,14 @@ from wt_inspect.studies.closed_loop import (  # noqa: F401 - re-exported for the
     offset_start,
     run_closed_loop,
 )
-from wt_inspect_env.quadrotor import QuadrotorParams
+from wt_inspect_env.physics.quadrotor import QuadrotorParams
 
 
 def run_in_simulator(policy: Any, params: QuadrotorParams, scenario: SurfacePass, x0: np.ndarray,
                      steps: int) -> tuple[np.ndarray, np.ndarray, list[Any], np.ndarray]:
     """Closed loop through the PyBullet simulator (rate loop, motor lag, drag; no wind), with the
     simulator's body rates in the observation: (distances, headings, per-step stats, final state)."""
-    from wt_inspect_env.sim import QuadrotorSim, SimConfig
+    from wt_inspect_env.world.sim import QuadrotorSim, SimConfig
     dists, heads, stats = [], [], []
     with QuadrotorSim(params, SimConfig()) as sim:
         sim.reset(x0)

@@ -22,7 +22,7 @@ import os
 import pytest
 from hypothesis import HealthCheck, settings
 
-from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.physics.quadrotor import QuadrotorParams, get_preset
 
 # Written out in full rather than relying on Hypothesis' own CI detection (6.x versions differ).
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True, deadline=None,

@@ -10,7 +10,7 @@ COMMAND_LONG is acknowledged; PARAM_REQUEST_READ answers MPC_THR_HOVER and THR_M
 MAV_CMD_REQUEST_MESSAGE(GPS_GLOBAL_ORIGIN) is answered. It streams HEARTBEAT (10 Hz) and
 ODOMETRY (pose LOCAL_NED, velocity BODY_FRD) - or LOCAL_POSITION_NED + ATTITUDE_QUATERNION - at
 ``rate_hz`` from either a rigid-body integrator of the paper's model or the project's simulator
-(:class:`~wt_inspect_env.sim.QuadrotorSim` with the turbine and wind: then the runner's commands
+(:class:`~wt_inspect_env.world.sim.QuadrotorSim` with the turbine and wind: then the runner's commands
 fly the same physics ``evaluate`` flies). Outside OFFBOARD the vehicle holds still (PX4's
 position controller, idealised).
 
@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import GRAVITY, QuadrotorParams
 from wt_inspect_px4.frames import F_FRD_FLU, SiteFrame
 from wt_inspect_px4.link import (
     HOLD_MODE,
@@ -172,7 +172,7 @@ class FakePX4:
             self.sim.reset(self.x)
 
     def _integrate(self, rates_flu: np.ndarray, thrust_n: float) -> None:
-        """The paper's model (:mod:`wt_inspect_env.dynamics`), Euler in 4 sub-steps."""
+        """The paper's model (:mod:`wt_inspect_env.physics.dynamics`), Euler in 4 sub-steps."""
         h = self.dt / 4
         for _ in range(4):
             R = quat_to_rotmat_np(self.x[6:10])

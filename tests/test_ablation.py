@@ -8,7 +8,7 @@ import pytest
 
 from wt_inspect.ablation import BASE_CONTROLLERS, STEPS, main, markdown, plan_rows, run_ablation
 from wt_inspect.evaluation.scenarios import env_options
-from wt_inspect_env.env_config import EnvConfig
+from wt_inspect_env.task.env_config import EnvConfig
 
 
 def _config(scenario: str, overrides: dict) -> EnvConfig:

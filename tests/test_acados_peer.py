@@ -14,7 +14,7 @@ import pytest
 
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy, vtnmpc_parameters
 from wt_inspect.commands.acados_compare import check_python, ocp_spec, run_peer
-from wt_inspect_env.geometry import standoff_state
+from wt_inspect_env.task.geometry import standoff_state
 
 ACADOS_PYTHON = os.environ.get("WT_INSPECT_ACADOS_PYTHON", "")
 needs_acados = pytest.mark.skipif(not (ACADOS_PYTHON and os.access(ACADOS_PYTHON, os.X_OK)),

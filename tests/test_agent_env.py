@@ -10,7 +10,7 @@ pytest.importorskip("stable_baselines3")
 
 import wt_inspect_env  # noqa: E402,F401 - registers the ids
 from agents.policy import agent_env, load_sb3_policy  # noqa: E402
-from agents.registration import resolve_model_path  # noqa: E402
+from agents.safe_load import resolve_model_path  # noqa: E402
 
 OPTIONS = {"wind": {"type": "gust", "mean_speed": 4.0}, "standoff": 7.0, "drone": "matrice100"}
 DECISIONS = 40   # agent steps: 160 control steps (1.6 s) with the shipped agents' action_repeat 4

@@ -20,9 +20,9 @@ from agents.wrappers import (
     InspectionAgentEnv,
     ResidualHoverAction,
 )
-from wt_inspect_env.dynamics import yaw_to_quat
-from wt_inspect_env.quadrotor import GRAVITY
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.physics.dynamics import yaw_to_quat
+from wt_inspect_env.physics.quadrotor import GRAVITY
+from wt_inspect_env.task.spaces import ActionScaling
 
 SURFACE = "WindTurbineInspection-Surface-v0"
 ALL_GROUPS = ("ideal_body", "point_body", "velocity_body", "gravity_body", "heading", "body_rates",
@@ -175,7 +175,7 @@ def test_attitude_mode_points_the_thrust_at_the_set_point():
     yaw, roll = 1.0, math.radians(30)
     qy = np.array([0, 0, math.sin(yaw / 2), math.cos(yaw / 2)])
     qr = np.array([math.sin(roll / 2), 0, 0, math.cos(roll / 2)])
-    from wt_inspect_env.dynamics import quat_product
+    from wt_inspect_env.physics.dynamics import quat_product
     q = np.asarray(quat_product(qy, qr), dtype=float).reshape(4)
     cmd = dec.command([1.0, 0.0, 0.5, 0.0], q)
     np.testing.assert_allclose(cmd[:2], 0.0, atol=1e-12)

@@ -16,7 +16,7 @@ from controllers.authors_baselines import (
 )
 from controllers.nmpc import NMPCPolicy
 from controllers.pampc import PAMPCConfig, image_coordinates
-from wt_inspect_env.camera import CameraConfig
+from wt_inspect_env.scene.camera import CameraConfig
 
 
 def _yaw_state(yaw: float, *, flip: bool = False) -> np.ndarray:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import math
 
-from wt_inspect_env.commands import bench_vecenv
+from wt_inspect.commands import bench_vecenv
 
 
 def test_memory_readings_cover_the_requested_steps_and_give_a_finite_slope():

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.blade_geometry import BladeShape, section_contour
 from wt_inspect_env.planner import cluster_surfaces, plan_inspection
 from wt_inspect_env.planner.clearance import DistanceField
-from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
-from wt_inspect_env.turbine_presets import NREL_5MW_NODES
+from wt_inspect_env.turbine.blade_geometry import BladeShape, section_contour
+from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
+from wt_inspect_env.turbine.presets import NREL_5MW_NODES
 
 
 @pytest.fixture(scope="module")
@@ -186,8 +186,8 @@ def test_a_custom_blade_shape():
 def test_rotor_turn_auto_pins_the_paper_turn_only_on_the_paper_turbine():
     """``rotor_turn_deg="auto"`` (default): 120 deg on the paper's turbine, the planner's choice on any
     other - the NREL 5-MW has no fixed-120-deg plan at d_min = 3 m (its blade roots beside the hub)."""
-    from wt_inspect_env.env_config import EnvConfig
-    from wt_inspect_env.mission import build_mission
+    from wt_inspect_env.task.env_config import EnvConfig
+    from wt_inspect_env.task.mission import build_mission
 
     assert EnvConfig().rotor_turn_deg == 120.0
     assert EnvConfig(turbine={"preset": "nrel-5mw"}).rotor_turn_deg is None

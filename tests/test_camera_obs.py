@@ -9,7 +9,7 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import wt_inspect_env  # noqa: F401 - registers the ids
-from wt_inspect_env.texture import SpanTexture, vertex_normals
+from wt_inspect_env.scene.texture import SpanTexture, vertex_normals
 
 SURFACE = "WindTurbineInspection-Surface-v0"
 
@@ -86,7 +86,7 @@ def test_frustum_culling_draws_the_same_image_as_the_whole_turbine():
     and across the rotor turn of the full mission."""
     import pybullet as p
 
-    from wt_inspect_env.render import _render, camera_images, metric_depth
+    from wt_inspect_env.scene.render import _render, camera_images, metric_depth
 
     env = gym.make("WindTurbineInspection-v0", obs_mode="rgbd", camera_resolution=(40, 30), wind="none",
                    start_offset=(0.0, 0.0, 0.0)).unwrapped
@@ -165,7 +165,7 @@ def test_vector_env_refuses_image_modes_in_one_line():
 
 @pytest.mark.slow
 def test_bench_env_measures_the_image_modes(capsys):
-    from wt_inspect_env.commands.bench_env import main
+    from wt_inspect.commands.bench_env import main
 
     assert main(["--task", "surface", "--steps", "30", "--repeats", "1", "--obs-mode", "rgbd",
                  "--camera-resolution", "32x24", "--json"]) == 0

@@ -139,7 +139,7 @@ def test_a_start_drawn_inside_the_turbine_gets_a_new_direction_deterministically
     # tower (collision at the first step); the campaign redraws such a direction from the episode's
     # seed. A draw whose start is crafted to lie on the tower's axis:
     from wt_inspect.evaluation.runner import make_env
-    from wt_inspect_env.proximity import TurbineProximity
+    from wt_inspect_env.planner.proximity import TurbineProximity
     clear = next(d for d in cp.draw_episodes(cp.CampaignConfig(episodes=10)) if d["turbine"] == "generated")
     spec0 = make_spec(cp.SCENARIO, "vtnmpc-plus", clear["wind"], clear["seed"], cp.episode_options(clear, "full"),
                       1.0, 10)

@@ -3,7 +3,7 @@
 The closed-loop tests start the drone away from the first stand-off pose (``start_offset``) and
 measure its distance to the collision mesh at every control step with the planner's exact
 :class:`~wt_inspect_env.planner.clearance.DistanceField` (an independent KD-tree + triangle test,
-not the controllers' :class:`~wt_inspect_env.proximity.MeshProximity`).
+not the controllers' :class:`~wt_inspect_env.planner.proximity.MeshProximity`).
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from controllers.nmpc import NMPCConfig, NMPCPolicy
 from controllers.pampc import PAMPCPolicy
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCConfig, VTNMPCPolicy
 from wt_inspect_env.planner.clearance import DistanceField
-from wt_inspect_env.proximity import MeshProximity, TurbineProximity
+from wt_inspect_env.planner.proximity import MeshProximity, TurbineProximity
 
 
 def _box(center, half) -> np.ndarray:

@@ -11,8 +11,8 @@ import sys
 
 import pytest
 
+from wt_inspect.commands import plan as plan_cmd
 from wt_inspect.evaluation import OutputDirError, run_evaluation
-from wt_inspect_env.commands import plan as plan_cmd
 from wt_inspect_env.planner.plan import InspectionPlan
 
 SMALL = ["--blade-length", "20", "--blade-width", "2", "--tower-height", "40", "--mesh-step", "1.5", "--no-plot"]

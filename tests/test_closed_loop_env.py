@@ -20,7 +20,7 @@ def fly(policy, **env_kw):
         obs, r, term, trunc, info = env.step(policy.act(obs))
         a = obs["point"] - obs["position"]
         d = float(np.hypot(a[0], a[1]))
-        R = wt_inspect_env.dynamics.quat_to_rotmat_np(obs["quaternion"].astype(float))
+        R = wt_inspect_env.physics.dynamics.quat_to_rotmat_np(obs["quaternion"].astype(float))
         d_err.append(d - u.config.standoff)
         heads.append(float(R[:, 0] @ np.array([a[0], a[1], 0.0]) / d))
         if term or trunc:

@@ -16,18 +16,18 @@ import pytest
 import wt_inspect_env  # noqa: F401 - registers the environment ids
 from controllers.rti import RTIOptions
 from controllers.vtnmpc import VTNMPCConfig
-from wt_inspect_env.blade_geometry import BladeShape
-from wt_inspect_env.camera import CameraConfig
-from wt_inspect_env.env_config import EnvConfig, RewardConfig
-from wt_inspect_env.metrics import MetricsConfig
+from wt_inspect_env.physics.quadrotor import get_preset
+from wt_inspect_env.physics.rate_control import RateGains
+from wt_inspect_env.physics.sim_config import SimConfig
 from wt_inspect_env.planner.config import PlannerConfig
-from wt_inspect_env.quadrotor import get_preset
-from wt_inspect_env.rate_control import RateGains
-from wt_inspect_env.reference import ReferenceConfig
-from wt_inspect_env.sim import SimConfig
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.turbine import MeshLoadOptions, TurbineSpec
-from wt_inspect_env.validation import _field_kinds, check_array, check_finite
+from wt_inspect_env.scene.camera import CameraConfig
+from wt_inspect_env.task.env_config import EnvConfig, RewardConfig
+from wt_inspect_env.task.metrics import MetricsConfig
+from wt_inspect_env.task.reference import ReferenceConfig
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.turbine.blade_geometry import BladeShape
+from wt_inspect_env.turbine.model import MeshLoadOptions, TurbineSpec
+from wt_inspect_env.util.validation import _field_kinds, check_array, check_finite
 
 
 def _bases() -> list:

@@ -11,9 +11,9 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.camera import CameraConfig, GimbalCamera
-from wt_inspect_env.coverage import TriangleVisibility, TrimeshOccluder
-from wt_inspect_env.env_config import EnvConfig
+from wt_inspect_env.scene.camera import CameraConfig, GimbalCamera
+from wt_inspect_env.task.coverage import TriangleVisibility, TrimeshOccluder
+from wt_inspect_env.task.env_config import EnvConfig
 
 LOOK_PLUS_Y = [0.0, 0.0, math.sin(math.pi / 4), math.cos(math.pi / 4)]
 AUTHORS = {"focal_length_mm": 35.0, "incidence_reference": "optical_axis", "range_reference": "centroid",

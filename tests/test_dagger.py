@@ -18,8 +18,8 @@ from agents.recipe import Recipe, load_recipe  # noqa: E402
 from agents.train_cli import main as train_main  # noqa: E402
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy  # noqa: E402
 from wt_inspect.demonstrations import DemoConfig, record_demonstrations  # noqa: E402
-from wt_inspect_env.dynamics import QuadrotorModel  # noqa: E402
-from wt_inspect_env.quadrotor import get_preset  # noqa: E402
+from wt_inspect_env.physics.dynamics import QuadrotorModel  # noqa: E402
+from wt_inspect_env.physics.quadrotor import get_preset  # noqa: E402
 
 RECIPE = "agents/recipes/dagger_full.json"
 

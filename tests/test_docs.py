@@ -49,7 +49,7 @@ def test_scenarios_page_names_every_scenario():
 
 
 def test_metrics_page_defines_every_reported_metric():
-    from wt_inspect_env.metrics import InspectionMetrics
+    from wt_inspect_env.task.metrics import InspectionMetrics
     text = (DOCS / "metrics.md").read_text()
     names = [f.name for f in dataclasses.fields(InspectionMetrics)
              if f.name not in {"n_samples", "n_inspecting", "n_triangles", "n_seen", "safety_margin_m", "coverage",
@@ -61,7 +61,7 @@ def test_metrics_page_defines_every_reported_metric():
 
 def test_cli_page_lists_every_config_key_and_the_reward_terms_are_documented():
     from wt_inspect.evaluation.config import KINDS
-    from wt_inspect_env.step_terms import REWARD_TERMS
+    from wt_inspect_env.task.step_terms import REWARD_TERMS
     cli = (DOCS / "cli.md").read_text()
     assert [k for k in KINDS if f"`{k}`" not in cli] == []
     env = (DOCS / "environment.md").read_text()

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from wt_inspect_env.dynamics import QuadrotorModel, hover_state, quat_to_rotmat_np, yaw_to_quat
-from wt_inspect_env.quadrotor import GRAVITY, PRESETS, QuadrotorParams, get_preset
+from wt_inspect_env.physics.dynamics import QuadrotorModel, hover_state, quat_to_rotmat_np, yaw_to_quat
+from wt_inspect_env.physics.quadrotor import GRAVITY, PRESETS, QuadrotorParams, get_preset
 
 
 def test_hover_is_equilibrium():

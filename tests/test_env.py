@@ -7,7 +7,7 @@ from gymnasium.utils.env_checker import check_env
 
 import wt_inspect_env  # noqa: F401  (registers the ids)
 from wt_inspect_env import ENV_IDS
-from wt_inspect_env.batched_sim import ray_mask
+from wt_inspect_env.world.batched_sim import ray_mask
 
 
 def make(env_id="WindTurbineInspection-Surface-v0", **kw):
@@ -350,7 +350,7 @@ def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
 
 def test_reference_approach_speed_option():
     """"auto" is the braking bound sqrt(2 a (standoff - d_min)); bad values name the field."""
-    from wt_inspect_env.env_config import EnvConfig
+    from wt_inspect_env.task.env_config import EnvConfig
 
     assert EnvConfig().reference_approach_speed == pytest.approx((2.0 * 3.0 * (7.0 - 3.0)) ** 0.5)
     assert EnvConfig(standoff=10.0, d_min=4.0).reference_approach_speed == pytest.approx(6.0)
@@ -367,7 +367,7 @@ def test_clearance_shortfall_matches_a_brute_force_distance():
     no ideal pose falls short; a stricter d_min (5 m) makes the blade roots fall short."""
     from trimesh import triangles as tt
 
-    from wt_inspect_env.reference import standoff_poses
+    from wt_inspect_env.task.reference import standoff_poses
     env = make("WindTurbineInspection-v0")
     u = env.unwrapped
     m = u.mission

@@ -21,8 +21,8 @@ from wt_inspect.evaluation.cli import main as cli_main
 from wt_inspect.evaluation.report import CSV_COLUMNS, read_csv
 from wt_inspect.evaluation.runner import save_run
 from wt_inspect.evaluation.scenarios import env_options
-from wt_inspect_env.metrics import compute_metrics
 from wt_inspect_env.policy import Policy
+from wt_inspect_env.task.metrics import compute_metrics
 
 REQUIRED = ("scenario", "controller", "wind", "seed", "coverage", "safety", "centering", "mean_distance",
             "min_distance", "collisions", "flight_time", "solve_median_ms", "solve_p99_ms")
@@ -290,7 +290,7 @@ def test_ray_backend_without_an_address_runs_on_its_own_instance(tmp_path, monke
 @pytest.mark.parametrize("address", ["127.0.0.1:1", "ray://127.0.0.1:1", "no-port"])
 def test_ray_address_nothing_answers_on_is_refused_at_once(address):
     pytest.importorskip("ray")
-    from wt_inspect_env.ray_session import init_ray
+    from wt_inspect_env.util.ray_session import init_ray
     with pytest.raises(ValueError, match=f"address '{address}'"):
         init_ray(address)
 

@@ -13,7 +13,7 @@ import pytest
 from controllers.vtnmpc import VTNMPCPolicy
 from wt_inspect_env import policy as policy_module
 from wt_inspect_env.policy import check_observation
-from wt_inspect_env.spaces import OBS_KEYS, OBS_SHAPES
+from wt_inspect_env.task.spaces import OBS_KEYS, OBS_SHAPES
 
 
 def _obs(dtype=np.float32, seed=0):

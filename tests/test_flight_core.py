@@ -9,15 +9,16 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.batched_sim import BatchedQuadrotorSim
-from wt_inspect_env.commands.bench_sim import excitation, integrator_difference
-from wt_inspect_env.dynamics import hover_state
-from wt_inspect_env.flight_core import FlightCore
-from wt_inspect_env.quadrotor import get_preset
-from wt_inspect_env.rate_control import Mixer, RateController, RateGains
-from wt_inspect_env.sim import QuadrotorSim, SimConfig, SubstepConstants
-from wt_inspect_env.turbine import build_turbine
-from wt_inspect_env.wind import GustWind
+from wt_inspect.commands.bench_sim import excitation, integrator_difference
+from wt_inspect_env.physics.dynamics import hover_state
+from wt_inspect_env.physics.flight_core import FlightCore
+from wt_inspect_env.physics.quadrotor import get_preset
+from wt_inspect_env.physics.rate_control import Mixer, RateController, RateGains
+from wt_inspect_env.physics.sim_config import SimConfig, SubstepConstants
+from wt_inspect_env.physics.wind import GustWind
+from wt_inspect_env.turbine.model import build_turbine
+from wt_inspect_env.world.batched_sim import BatchedQuadrotorSim
+from wt_inspect_env.world.sim import QuadrotorSim
 
 M100 = get_preset("matrice100")
 

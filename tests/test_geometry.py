@@ -1,5 +1,5 @@
-"""The one home of the inspection geometry, hover thrust and drag (wt_inspect_env.geometry,
-wt_inspect_env.quadrotor), held to independent formulas."""
+"""The one home of the inspection geometry, hover thrust and drag (wt_inspect_env.task.geometry,
+wt_inspect_env.physics.quadrotor), held to independent formulas."""
 from __future__ import annotations
 
 import math
@@ -7,8 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.dynamics import quat_to_rotmat_np, yaw_to_quat
-from wt_inspect_env.geometry import (
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np, yaw_to_quat
+from wt_inspect_env.physics.quadrotor import AIR_DENSITY, GRAVITY, drag_force, get_preset, hover_thrust
+from wt_inspect_env.task.geometry import (
     HorizontalNormal,
     camera_heading,
     direction_to_drone,
@@ -18,8 +19,7 @@ from wt_inspect_env.geometry import (
     standoff_position,
     standoff_state,
 )
-from wt_inspect_env.quadrotor import AIR_DENSITY, GRAVITY, drag_force, get_preset, hover_thrust
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.task.spaces import ActionScaling
 
 
 def test_horizontal_normal_and_its_fallback():
@@ -79,8 +79,8 @@ def test_hover_thrust_and_drag_have_one_definition():
 def test_the_simulator_integrates_the_same_drag_coefficients():
     """The simulator's per-sub-step drag constants are the parameters' drag coefficients (the
     one drag model, :func:`drag_force`), bit for bit."""
-    from wt_inspect_env.rate_control import Mixer
-    from wt_inspect_env.sim import SimConfig, SubstepConstants
+    from wt_inspect_env.physics.rate_control import Mixer
+    from wt_inspect_env.physics.sim_config import SimConfig, SubstepConstants
     for name in ("matrice100", "lab250"):
         p = get_preset(name)
         k = SubstepConstants.of(p, SimConfig(), Mixer(p))

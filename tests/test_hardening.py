@@ -154,7 +154,7 @@ def test_sigint_in_train_before_the_first_checkpoint_saves_one(tmp_path):
 
 
 def test_interrupts_deferred_holds_a_second_signal_until_the_report_is_written():
-    from wt_inspect_env.interrupts import Terminated, interrupts_deferred, interrupts_raise
+    from wt_inspect_env.util.interrupts import Terminated, interrupts_deferred, interrupts_raise
     steps = []
     with interrupts_raise():
         with pytest.raises(Terminated):
@@ -252,7 +252,7 @@ def test_evaluate_resumes_past_a_foreign_run_file_and_rescore_names_it(run_file,
      r"blade chord has 2 values but span has 3"),
 ])
 def test_unbounded_or_malformed_options_are_refused_naming_the_field(options, needle):
-    from wt_inspect_env.env_config import EnvConfig
+    from wt_inspect_env.task.env_config import EnvConfig
     with pytest.raises(ValueError, match=needle):
         EnvConfig.from_kwargs(**options)
 
@@ -278,7 +278,7 @@ def test_the_start_bounds_hold_in_reset_options_and_the_vector_env():
 
 
 def test_depth_from_a_rounded_buffer_stays_inside_the_observation_space():
-    from wt_inspect_env.render import metric_depth
+    from wt_inspect_env.scene.render import metric_depth
     buf = np.array([0.0, 0.5, 1.0 - 1e-7, 1.0, 1.0 + 1e-7, np.nextafter(np.float32(1), np.float32(2))], np.float32)
     for far in (50.0, 1000.0):
         d = metric_depth(buf, far)

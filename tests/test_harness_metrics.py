@@ -24,8 +24,8 @@ from wt_inspect.evaluation.harness_metrics import (
 from wt_inspect.evaluation.report import CSV_COLUMNS, read_csv
 from wt_inspect.evaluation.runner import make_env, save_run
 from wt_inspect.evaluation.scenarios import env_options
-from wt_inspect_env.proximity import MeshProximity
-from wt_inspect_env.quadrotor import GRAVITY, electrical_power, get_preset
+from wt_inspect_env.physics.quadrotor import GRAVITY, electrical_power, get_preset
+from wt_inspect_env.planner.proximity import MeshProximity
 
 
 def _brute(points: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ def test_geometry_index_counts_the_phase_change_holds():
 
 def test_d_min_is_the_mpcs_default():
     from controllers.vtnmpc import VTNMPCConfig
-    from wt_inspect_env.env_config import EnvConfig
+    from wt_inspect_env.task.env_config import EnvConfig
     for d_ref in (7.0, 0.5):
         assert VTNMPCConfig(d_ref=d_ref).d_min == pytest.approx(EnvConfig(standoff=d_ref).d_min)
         assert EnvConfig(standoff=d_ref).d_min == pytest.approx(D_MIN_RATIO * d_ref)

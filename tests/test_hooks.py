@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import wt_inspect_env  # noqa: F401 - registers the ids
-from wt_inspect_env.hooks import TaskHooks
+from wt_inspect_env.task.hooks import TaskHooks
 
 ENV = "WindTurbineInspection-Surface-v0"
 BONUS = 1000.0

@@ -1,5 +1,5 @@
 """The make/close leak of issue 17 is contained: PyBullet's kept references to the mesh lists
-are released (wt_inspect_env.pybullet_refs) and RSS stays flat over make/close cycles."""
+are released (wt_inspect_env.scene.pybullet_refs) and RSS stays flat over make/close cycles."""
 from __future__ import annotations
 
 import sys
@@ -7,8 +7,8 @@ import sys
 import pybullet as p
 import pytest
 
-from wt_inspect_env.commands.bench_leak import measure_make_close
-from wt_inspect_env.pybullet_refs import call_releasing
+from wt_inspect.commands.bench_leak import measure_make_close
+from wt_inspect_env.scene.pybullet_refs import call_releasing
 
 
 def _mesh() -> tuple[list, list]:

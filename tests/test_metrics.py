@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.metrics import (
+from wt_inspect_env.task.metrics import (
     InspectionMetrics,
     MetricAccumulator,
     MetricsConfig,

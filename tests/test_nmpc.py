@@ -13,7 +13,7 @@ from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start,
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, residual_functions
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import TrackingReference, standoff_reference
-from wt_inspect_env.dynamics import quat_to_rotmat_np
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
 
 D_REF = 7.0
 

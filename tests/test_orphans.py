@@ -107,7 +107,7 @@ def test_no_worker_survives_the_evaluation(tmp_path, backend, sig) -> None:
 
 _DRIVER = """
 import subprocess, sys, time
-from wt_inspect_env.ray_reaper import Reaper
+from wt_inspect_env.util.ray_reaper import Reaper
 mine = subprocess.Popen(["sleep", "300"])             # the driver's own, before the instance: not reaped
 reaper = Reaper()
 reaper.start()

@@ -12,8 +12,8 @@ from closed_loop import ModelPlant, SurfacePass, offset_start, run_closed_loop, 
 from controllers.pampc import PAMPCConfig, PAMPCPolicy, PAMPCWeights, build_ocp, camera_rotation, projection_function
 from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import standoff_reference
-from wt_inspect_env.camera import CameraConfig, GimbalCamera
-from wt_inspect_env.dynamics import quat_to_rotmat_np
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+from wt_inspect_env.scene.camera import CameraConfig, GimbalCamera
 
 D_REF = 7.0
 

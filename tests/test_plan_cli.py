@@ -11,10 +11,10 @@ import pytest
 import trimesh
 
 from wt_inspect import cli
-from wt_inspect_env.atomic_io import atomic_path
-from wt_inspect_env.commands import bench_planner
-from wt_inspect_env.commands import plan as plan_cmd
-from wt_inspect_env.turbine import build_turbine
+from wt_inspect.commands import bench_planner
+from wt_inspect.commands import plan as plan_cmd
+from wt_inspect_env.turbine.model import build_turbine
+from wt_inspect_env.util.atomic_io import atomic_path
 
 
 def test_plan_writes_the_three_files_and_a_json_summary(tmp_path, capsys):

@@ -21,7 +21,7 @@ from wt_inspect_env.planner import (
 )
 from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
 from wt_inspect_env.planner.path import offset_direction
-from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
+from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
 
 
 @pytest.fixture(scope="module")
@@ -580,7 +580,7 @@ def test_the_upright_y_needs_two_turns():
 
 def test_no_turn_when_everything_is_inspectable():
     """A single blade pointing up (the others removed) needs no turn: one phase, no hold point."""
-    from wt_inspect_env.mission import single_blade_turbine
+    from wt_inspect_env.task.mission import single_blade_turbine
     t = build_turbine(TurbineSpec(mesh_step=2.5))
     sub, _ = single_blade_turbine(t, 0)
     p = plan_inspection(sub, rotor_turn_deg=None)

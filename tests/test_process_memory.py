@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from wt_inspect_env.process_memory import release_free_heap, rss_mb
+from wt_inspect_env.util.process_memory import release_free_heap, rss_mb
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc malloc_trim")

@@ -2,7 +2,7 @@
 PX4-like vehicle, 4 m/s wind, 100 Hz, 10-30 ms latency and 2 % packet loss each way - scored like
 ``evaluate`` and compared with the same flight in ``evaluate``.
 
-The vehicle side is tests/px4_fake.py with :class:`~wt_inspect_env.sim.QuadrotorSim` (the
+The vehicle side is tests/px4_fake.py with :class:`~wt_inspect_env.world.sim.QuadrotorSim` (the
 environment's own physics: rate loop, motor lag, drag, the same seeded wind field and the turbine
 mesh) stepping in real time on the runner's set-points. A flight of ``SECONDS`` simulated seconds
 (the beginning of the surface) keeps the test to seconds; the whole surface (~70 s) is the same
@@ -30,7 +30,7 @@ from px4_fake import FakePX4  # noqa: E402
 from wt_inspect.evaluation import evaluate_policy  # noqa: E402
 from wt_inspect.evaluation.runner import make_env  # noqa: E402
 from wt_inspect.evaluation.scenarios import env_options  # noqa: E402
-from wt_inspect_env.sim import QuadrotorSim, SimConfig  # noqa: E402
+from wt_inspect_env.world.sim import QuadrotorSim, SimConfig  # noqa: E402
 from wt_inspect_px4.frames import Site  # noqa: E402
 from wt_inspect_px4.link import HOLD_MODE, LinkFaults  # noqa: E402
 from wt_inspect_px4.offboard import FlyConfig, _turbine_pose, run_flight  # noqa: E402

@@ -11,7 +11,7 @@ from scipy.spatial.transform import Rotation
 
 pytest.importorskip("pymavlink")
 
-from wt_inspect_env.quadrotor import get_preset  # noqa: E402
+from wt_inspect_env.physics.quadrotor import get_preset  # noqa: E402
 from wt_inspect_px4.frames import Site, geodetic_to_ned, ned_to_geodetic  # noqa: E402
 from wt_inspect_px4.thrust import ThrustMap, curve, inverse_curve  # noqa: E402
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import wt_inspect_env  # noqa: F401 - registers the ids
-from wt_inspect_env.quadrotor import GRAVITY, get_preset
-from wt_inspect_env.randomization import RandomizationConfig, coerce_randomization
+from wt_inspect_env.physics.quadrotor import GRAVITY, get_preset
+from wt_inspect_env.task.randomization import RandomizationConfig, coerce_randomization
 
 SURFACE = "WindTurbineInspection-Surface-v0"
 # Every range pinned to the nominal value: a randomisation that changes nothing.

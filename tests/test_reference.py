@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.reference import InspectionReference, ReferenceConfig
+from wt_inspect_env.task.reference import InspectionReference, ReferenceConfig
 
 DT = 0.01
 
@@ -343,7 +343,7 @@ def test_reach_lets_the_point_advance_where_the_clearance_keeps_the_drone_off_it
 
 
 def test_stalls_are_per_drone_in_a_batch():
-    from wt_inspect_env.reference import BatchedReference
+    from wt_inspect_env.task.reference import BatchedReference
     pts, nrm, s, ph = straight_path(10.0)
     ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=3.0, on_stall="skip"))
     batch = BatchedReference(ref, 3)
@@ -419,7 +419,7 @@ def test_the_approach_waits_for_a_lagging_drone_and_is_skipped_when_not_needed()
 
 
 def test_drone_i_of_a_batch_approaches_like_a_single_drone():
-    from wt_inspect_env.reference import BatchedReference
+    from wt_inspect_env.task.reference import BatchedReference
     pts, nrm, s, ph = straight_path(10.0)
     cfg = ReferenceConfig(approach_speed=3.0)
     ref = InspectionReference(pts, nrm, s, ph, cfg)

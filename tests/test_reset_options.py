@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import wt_inspect_env  # noqa: F401 - registers the ids
-from wt_inspect_env.env_config import RESET_OPTIONS
+from wt_inspect_env.task.env_config import RESET_OPTIONS
 
 SURFACE = "WindTurbineInspection-Surface-v0"
 WIND5 = {"type": "constant", "velocity": [0.0, 5.0, 0.0]}

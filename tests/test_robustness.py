@@ -10,8 +10,8 @@ import wt_inspect_env  # noqa: F401 - registers the environment ids
 from controllers.rti import RTIOptions
 from controllers.vtnmpc import VTNMPCPolicy
 from wt_inspect.evaluation.scenarios import wind_spec
+from wt_inspect_env.physics.wind import MAX_WIND_SPEED, make_wind
 from wt_inspect_env.vector.env import WindTurbineInspectionVectorEnv
-from wt_inspect_env.wind import MAX_WIND_SPEED, make_wind
 
 ENV = "WindTurbineInspection-Surface-v0"
 

@@ -10,7 +10,7 @@ import pytest
 
 from controllers.rti import OCP, IpoptOCPSolver, RTIOptions, RTISolver
 from controllers.vtnmpc import VTNMPCConfig, build_ocp, vtnmpc_parameters
-from wt_inspect_env.geometry import standoff_state as ideal_state
+from wt_inspect_env.task.geometry import standoff_state as ideal_state
 
 
 @pytest.fixture(scope="module")

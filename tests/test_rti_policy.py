@@ -14,9 +14,9 @@ from controllers.pampc import PAMPCPolicy
 from controllers.rti import OCP, RTIOptions
 from controllers.rti_policy import LSQWeights, MPCConfig, RTIPolicy
 from controllers.vtnmpc import VTNMPC_PLUS, VTNMPCPolicy
-from wt_inspect_env.dynamics import NU, NX, QuadrotorModel
-from wt_inspect_env.geometry import heading_and_distance, standoff_position
-from wt_inspect_env.quadrotor import get_preset
+from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel
+from wt_inspect_env.physics.quadrotor import get_preset
+from wt_inspect_env.task.geometry import heading_and_distance, standoff_position
 
 UNCOMPILED = RTIOptions(qp_mode="speed_abs", compiled=False)
 

@@ -24,8 +24,7 @@ pytest.importorskip("torch")
 
 from agents import safe_load  # noqa: E402
 from agents.policy import load_sb3_policy, sidecar_paths  # noqa: E402
-from agents.registration import shipped_models  # noqa: E402
-from agents.safe_load import MODELS_DIR, UnsafeModelError, verify_shipped  # noqa: E402
+from agents.safe_load import MODELS_DIR, UnsafeModelError, shipped_models, verify_shipped  # noqa: E402
 
 DATA = Path(__file__).parent / "data" / "shipped_model_actions.npz"
 SOURCE = "ppo_surface"

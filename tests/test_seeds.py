@@ -9,7 +9,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from agents.recipe import Recipe, default_recipe_path  # noqa: E402
-from agents.registration import resolve_model_path, shipped_models  # noqa: E402
+from agents.safe_load import resolve_model_path, shipped_models  # noqa: E402
 from agents.seeds import parse_seeds, reached, seed_report, train_seeds  # noqa: E402
 
 

@@ -17,11 +17,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from wt_inspect_env.dynamics import QuadrotorModel, hover_state, quat_to_rotmat_np, yaw_to_quat
-from wt_inspect_env.quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
-from wt_inspect_env.rate_control import Mixer, RateGains
-from wt_inspect_env.sim import QuadrotorSim, SimConfig
-from wt_inspect_env.wind import ConstantWind, DrydenWind, FunctionWind, GustWind
+from wt_inspect_env.physics.dynamics import QuadrotorModel, hover_state, quat_to_rotmat_np, yaw_to_quat
+from wt_inspect_env.physics.quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
+from wt_inspect_env.physics.rate_control import Mixer, RateGains
+from wt_inspect_env.physics.wind import ConstantWind, DrydenWind, FunctionWind, GustWind
+from wt_inspect_env.world.sim import QuadrotorSim, SimConfig
 
 M100 = get_preset("matrice100")
 NO_EFFECTS = dict(motor_lag=False, drag=False)
@@ -207,8 +207,8 @@ def test_batched_desaturating_mix_is_the_scalar_mix_bit_for_bit():
     """The vector simulator mixes its saturated drones in one batch; each drone's thrusts and
     saturation flags must be exactly those of its own scalar mix (both presets, every branch:
     roll/pitch scaled, collective lowered or raised, yaw cut)."""
-    from wt_inspect_env.quadrotor import PRESETS
-    from wt_inspect_env.rate_control import mix_saturated
+    from wt_inspect_env.physics.quadrotor import PRESETS
+    from wt_inspect_env.physics.rate_control import mix_saturated
     rng = np.random.default_rng(3)
     for params in PRESETS.values():
         mixer = Mixer(params)

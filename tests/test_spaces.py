@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
-from wt_inspect_env.quadrotor import GRAVITY, get_preset
-from wt_inspect_env.spaces import ActionScaling
+from wt_inspect_env.physics.quadrotor import GRAVITY, get_preset
+from wt_inspect_env.task.spaces import ActionScaling
 
 
 def test_action_round_trip_and_bounds():

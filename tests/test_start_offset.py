@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import wt_inspect_env  # noqa: F401 - registers the ids
-from wt_inspect_env.env_config import EnvConfig, check_start_offset
+from wt_inspect_env.task.env_config import EnvConfig, check_start_offset
 
 SURFACE = "WindTurbineInspection-Surface-v0"
 

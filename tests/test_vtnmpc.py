@@ -20,12 +20,12 @@ from controllers.vtnmpc import (
     visual_terms,
     vtnmpc_parameters,
 )
-from wt_inspect_env.dynamics import quat_to_rotmat_np
-from wt_inspect_env.geometry import horizontal_normal
-from wt_inspect_env.geometry import standoff_state as ideal_state
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import GRAVITY, get_preset
+from wt_inspect_env.physics.wind import GustWind
 from wt_inspect_env.policy import Policy
-from wt_inspect_env.quadrotor import GRAVITY, get_preset
-from wt_inspect_env.wind import GustWind
+from wt_inspect_env.task.geometry import horizontal_normal
+from wt_inspect_env.task.geometry import standoff_state as ideal_state
 
 D_REF = 7.0
 
@@ -148,7 +148,7 @@ def test_camera_heading_ignores_tilt_and_equals_the_env_camera_heading():
 
 
 def _qmul(a, b):
-    from wt_inspect_env.dynamics import quat_product
+    from wt_inspect_env.physics.dynamics import quat_product
     return quat_product(a, b)
 
 
@@ -335,7 +335,7 @@ def test_gust_across_the_normal_keeps_safety_metric_with_paper_controller(policy
 
 
 def _sim():
-    sim_mod = pytest.importorskip("wt_inspect_env.sim")
+    sim_mod = pytest.importorskip("wt_inspect_env.world.sim")
     return sim_mod.QuadrotorSim, sim_mod.SimConfig
 
 

@@ -25,10 +25,10 @@ from controllers.rti import RTIOptions
 from controllers.rti_policy import REFERENCE_D_REF, ResidualScales
 from controllers.tracking import TrackingReference
 from controllers.vtnmpc import VTNMPC_PLUS, WEIGHT_SETS, VTNMPCConfig, VTNMPCPolicy, VTNMPCWeights, vtnmpc_parameters
-from wt_inspect_env.camera import CameraConfig
-from wt_inspect_env.dynamics import yaw_to_quat
-from wt_inspect_env.geometry import standoff_state
-from wt_inspect_env.quadrotor import get_preset
+from wt_inspect_env.physics.dynamics import yaw_to_quat
+from wt_inspect_env.physics.quadrotor import get_preset
+from wt_inspect_env.scene.camera import CameraConfig
+from wt_inspect_env.task.geometry import standoff_state
 
 M100 = get_preset("matrice100")
 LAB = get_preset("lab250")

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.wind import (
+from wt_inspect_env.physics.wind import (
     ConstantWind,
     DrydenWind,
     FunctionWind,

@@ -49,8 +49,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.figure_io import FIGURE_FORMATS, check_figure_format, save_and_close
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.figure_io import FIGURE_FORMATS, check_figure_format, save_and_close
 
 from .evaluation import OutputDirError, prepare_out_dir, run_evaluation
 from .evaluation.runner import flight_key, load_run, rescore_coverage

@@ -1,10 +1,10 @@
 """The ``wt-inspect`` command line: one entry point, subcommands implemented in their own modules.
 
 This dispatcher sits above every package: it is the one place that names modules of
-``wt_inspect_env``, ``controllers``/``agents``, ``wt_inspect`` and ``wt_inspect_px4`` together. Each package keeps the
-subcommands that need only itself and what lies below it (``wt_inspect_env.commands``: plan and the
-environment benchmarks; ``agents``: train and its benchmark), and the commands that need the
-layers wired together live here (``wt_inspect.evaluation.cli``, ``wt_inspect.commands``). Each
+``wt_inspect_env``, ``controllers``/``agents``, ``wt_inspect`` and ``wt_inspect_px4`` together. The
+environment package holds no commands (``plan`` and the environment benchmarks are in
+``wt_inspect.commands`` with the commands that wire the layers together, and in
+``wt_inspect.evaluation.cli``); ``agents`` keeps train and its benchmark, which need only it. Each
 subcommand module exposes ``main(argv: list[str], prog: str) -> int``; it is imported only when its
 subcommand runs, so ``wt-inspect plan`` never pays for importing torch.
 """
@@ -19,7 +19,7 @@ from .extras import missing_extra
 DIST_NAME = "wt-inspect"   # the distribution (pyproject ``[project] name``) whose version --version prints
 
 COMMANDS: dict[str, tuple[str, str]] = {
-    "plan": ("wt_inspect_env.commands.plan", "plan the inspection path of a turbine"),
+    "plan": ("wt_inspect.commands.plan", "plan the inspection path of a turbine"),
     "evaluate": ("wt_inspect.evaluation.cli", "run controllers on a scenario, write the table and figures"),
     "ablation": ("wt_inspect.ablation", "paper-faithful -> project default, one change at a time"),
     "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
@@ -34,15 +34,15 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "sitl": ("wt_inspect_px4.sitl", "serve our world to PX4 SITL (HIL sensors out, actuator controls in, lock-step)"),
 }
 BENCHES: dict[str, tuple[str, str]] = {
-    "sim": ("wt_inspect_env.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
-    "coverage": ("wt_inspect_env.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
-    "env": ("wt_inspect_env.commands.bench_env", "environment steps per second (full mission)"),
-    "vecenv": ("wt_inspect_env.commands.bench_vecenv", "vector env aggregate steps per second vs the single env"),
-    "planner": ("wt_inspect_env.commands.bench_planner", "planning time for the default turbine"),
+    "sim": ("wt_inspect.commands.bench_sim", "simulator real-time factor (hover, wind on)"),
+    "coverage": ("wt_inspect.commands.bench_coverage", "camera coverage, reference and metrics cost per step"),
+    "env": ("wt_inspect.commands.bench_env", "environment steps per second (full mission)"),
+    "vecenv": ("wt_inspect.commands.bench_vecenv", "vector env aggregate steps per second vs the single env"),
+    "planner": ("wt_inspect.commands.bench_planner", "planning time for the default turbine"),
     "solver": ("wt_inspect.commands.bench_solver", "MPC time per control step: compiled RTI, uncompiled, IPOPT"),
     "mission": ("wt_inspect.commands.bench_mission", "one whole mission's wall time: simulator, env, policy, harness"),
     "train": ("agents.bench", "training throughput: vector env vs subprocess envs"),
-    "leak": ("wt_inspect_env.commands.bench_leak", "memory over repeated gym.make/reset/close cycles (RSS slope)"),
+    "leak": ("wt_inspect.commands.bench_leak", "memory over repeated gym.make/reset/close cycles (RSS slope)"),
 }
 
 
@@ -65,7 +65,7 @@ def _usage() -> str:
 
 def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], prog: str) -> int:
     module_name, _ = table[name]
-    from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
+    from wt_inspect_env.util.interrupts import EXIT_INTERRUPTED, interrupts_raise, signal_name
     try:   # the import and the run: a subcommand may import an optional dependency lazily
         with interrupts_raise():   # SIGTERM = Ctrl-C for every command, in every phase
             module = importlib.import_module(module_name)

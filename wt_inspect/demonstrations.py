@@ -35,9 +35,9 @@ import gymnasium as gym
 import numpy as np
 
 import wt_inspect_env
-from wt_inspect_env.atomic_io import check_out_dir
-from wt_inspect_env.env_config import TASKS, check_start_noise
-from wt_inspect_env.validation import check_choice, check_finite, check_positive
+from wt_inspect_env.task.env_config import TASKS, check_start_noise
+from wt_inspect_env.util.atomic_io import check_out_dir
+from wt_inspect_env.util.validation import check_choice, check_finite, check_positive
 
 DATASET_NAMESPACE = "wt-inspect"
 

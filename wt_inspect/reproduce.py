@@ -164,7 +164,7 @@ def record_behaviour(root: Path, study: Study, log=sys.stderr) -> bool:
     """Fly the digested runs of ``study`` with the current code and store their digests in its
     provenance; False (provenance untouched) if its commands fly nothing."""
     from wt_inspect.behaviour import digested_runs, record
-    from wt_inspect_env.atomic_io import write_text_atomic
+    from wt_inspect_env.util.atomic_io import write_text_atomic
     prov = read_provenance(root, study)
     if prov is None or not digested_runs(study.commands):
         return False
@@ -259,7 +259,7 @@ def update_readme(root: Path) -> list[str]:
     out.append(text[pos:])
     new = "".join(out)
     if new != text:
-        from wt_inspect_env.atomic_io import write_text_atomic
+        from wt_inspect_env.util.atomic_io import write_text_atomic
         write_text_atomic(readme, new)
     return problems
 
@@ -341,7 +341,7 @@ def run_study(root: Path, study: Study, commands: list[str], log=sys.stderr) -> 
     from wt_inspect.cli import version
     from wt_inspect.evaluation.report import hardware
     from wt_inspect.evaluation.runner import code_fingerprint
-    from wt_inspect_env.atomic_io import write_text_atomic
+    from wt_inspect_env.util.atomic_io import write_text_atomic
     t0 = time.perf_counter()
     discard_foreign_runs(root / study.folder, code_fingerprint(), log)
     for c in commands:

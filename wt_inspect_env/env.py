@@ -1,13 +1,13 @@
 """The Gymnasium environment: a PyBullet quadrotor inspecting a wind turbine under wind.
 
 One :class:`WindTurbineInspectionEnv` is a world of one drone: an
-:class:`~wt_inspect_env.world.InspectionWorld` with ``n = 1`` (its own PyBullet client, the turbine
+:class:`~wt_inspect_env.world.world.InspectionWorld` with ``n = 1`` (its own PyBullet client, the turbine
 and its inspection plan, the moving inspection reference, camera coverage and metrics) - the same
 code the vector environment runs for N drones. To change the reward, the observation or the
-termination, subclass :class:`~wt_inspect_env.hooks.TaskHooks` and pass ``hooks=`` (both
+termination, subclass :class:`~wt_inspect_env.task.hooks.TaskHooks` and pass ``hooks=`` (both
 environments honour it).
 
-Step: the normalised action (see :mod:`~wt_inspect_env.spaces`) becomes a ``[p, q, r, T]`` command
+Step: the normalised action (see :mod:`~wt_inspect_env.task.spaces`) becomes a ``[p, q, r, T]`` command
 held for ``1 / ctrl_hz``; the inspection point advances (closed loop: it waits for a lagging
 drone); at ``camera_hz`` the gimbal camera takes a frame and the newly seen blade triangles count.
 At the end of phase 1 the reference holds, the rotor turns by ``rotor_turn_deg`` (the collision
@@ -18,13 +18,13 @@ phase-2 path follows.
 non-finite state or, with ``pose_error_limit``, straying too far from the stand-off pose (then
 ``info["termination"]`` says which). ``truncated``: the mission is complete
 (``info["mission_complete"]``) or the time limit is reached. ``info["metrics"]`` holds the
-:class:`~wt_inspect_env.metrics.InspectionMetrics` so far (as a dict).
+:class:`~wt_inspect_env.task.metrics.InspectionMetrics` so far (as a dict).
 
 ``reset(seed=..., options={...})`` changes one episode: its wind, start (``start_offset``,
-``start_noise``, ``start_progress``) and domain randomisation (:mod:`~wt_inspect_env.randomization`),
+``start_noise``, ``start_progress``) and domain randomisation (:mod:`~wt_inspect_env.task.randomization`),
 validated as the constructor's keywords (:meth:`EnvConfig.for_episode`); the next reset without
 options is the constructor's configuration again. ``obs_mode`` ``rgb``/``depth``/``rgbd`` adds the
-gimbal camera's images (:func:`~wt_inspect_env.render.camera_images`) to the state Dict.
+gimbal camera's images (:func:`~wt_inspect_env.scene.render.camera_images`) to the state Dict.
 """
 from __future__ import annotations
 
@@ -34,13 +34,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from .coverage import CoverageTracker
-from .env_config import EnvConfig
-from .hooks import TaskHooks
-from .spaces import OBS_SHAPES
-from .texture import SpanTexture
-from .validation import check_actions, check_array
-from .world import InspectionWorld, grow_to_start, start_state
+from .scene.texture import SpanTexture
+from .task.coverage import CoverageTracker
+from .task.env_config import EnvConfig
+from .task.hooks import TaskHooks
+from .task.spaces import OBS_SHAPES
+from .util.validation import check_actions, check_array
+from .world.world import InspectionWorld, grow_to_start, start_state
 
 __all__ = ["WindTurbineInspectionEnv", "observation_space", "grow_to_start", "start_state", "IMAGE_KEYS"]
 
@@ -61,7 +61,7 @@ IMAGE_KEYS = {"state": (), "rgb": ("rgb",), "depth": ("depth",), "rgbd": ("rgb",
 
 def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84, 84),
                       depth_far: float = 50.0) -> spaces.Dict:
-    """The Dict observation space of one drone (see :mod:`~wt_inspect_env.spaces`); the image
+    """The Dict observation space of one drone (see :mod:`~wt_inspect_env.task.spaces`); the image
     modes add ``rgb`` (uint8 (h, w, 3), the layout stable-baselines3's CNN policies expect) and/or
     ``depth`` (float32 (h, w, 1) [m]) to the state entries, which every policy still reads."""
     bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
@@ -78,7 +78,7 @@ def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84
 class WindTurbineInspectionEnv(gym.Env):
     """Quadrotor wind-turbine inspection (see the module docstring and :class:`EnvConfig`).
 
-    ``hooks``: a :class:`~wt_inspect_env.hooks.TaskHooks` (subclass) that gives the observation,
+    ``hooks``: a :class:`~wt_inspect_env.task.hooks.TaskHooks` (subclass) that gives the observation,
     reward and termination (default: the inspection task's).
     """
 
@@ -148,7 +148,7 @@ class WindTurbineInspectionEnv(gym.Env):
         return int(self.world.phase_index[0])
 
     def metrics(self) -> dict[str, float]:
-        """The :class:`~wt_inspect_env.metrics.InspectionMetrics` (as a dict) of the episode so far."""
+        """The :class:`~wt_inspect_env.task.metrics.InspectionMetrics` (as a dict) of the episode so far."""
         return self.world.metrics(0).to_dict()
 
     # ------------------------------------------------------------------ gym API
@@ -183,7 +183,7 @@ class WindTurbineInspectionEnv(gym.Env):
     def render(self):
         if self.render_mode != "rgb_array":
             return None
-        from .render import render_views
+        from .scene.render import render_views
         return render_views(self)
 
     def close(self) -> None:
@@ -202,7 +202,7 @@ class WindTurbineInspectionEnv(gym.Env):
 
     def _camera_images(self) -> dict[str, np.ndarray]:
         """The gimbal camera's images for the image observation modes (see :mod:`.render`)."""
-        from .render import camera_images
+        from .scene.render import camera_images
         cfg = self.config
         rgb, depth = camera_images(self.sim, self.camera, self.sim.state[0], cfg.camera_resolution,
                                    far=cfg.depth_far, rgb="rgb" in IMAGE_KEYS[cfg.obs_mode],

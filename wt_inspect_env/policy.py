@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from wt_inspect_env.spaces import OBS_KEYS, OBS_SHAPES
+from wt_inspect_env.task.spaces import OBS_KEYS, OBS_SHAPES
 
 _OBS_SIZES = tuple(int(np.prod(OBS_SHAPES[k])) for k in OBS_KEYS)
 _OBS_SLICES = tuple(zip(OBS_KEYS, np.cumsum((0,) + _OBS_SIZES[:-1]).tolist(), np.cumsum(_OBS_SIZES).tolist()))
@@ -79,7 +79,7 @@ def check_observation(obs: Mapping[str, Any]) -> dict[str, np.ndarray]:
 
 
 def state_from_observation(obs: Mapping[str, np.ndarray]) -> np.ndarray:
-    """The model state [p, v_B, q] (:mod:`wt_inspect_env.dynamics` layout) of a checked
+    """The model state [p, v_B, q] (:mod:`wt_inspect_env.physics.dynamics` layout) of a checked
     observation, quaternion renormalised (float32 observations are not exactly unit)."""
     q = obs["quaternion"]
     nq = np.linalg.norm(q)

@@ -1,6 +1,6 @@
 """PX4's frames (local NED, body FRD) <-> the project's frames (z-up world W, body FLU), and the site.
 
-The project (:mod:`wt_inspect_env.dynamics`) uses a right-handed world with z up and gravity along
+The project (:mod:`wt_inspect_env.physics.dynamics`) uses a right-handed world with z up and gravity along
 -z, a body frame x forward / y left / z up, quaternions (x, y, z, w) body-to-world, velocity in
 body axes. PX4 uses a local North-East-Down frame, a Forward-Right-Down body frame and MAVLink
 quaternions (w, x, y, z) body-to-NED. Between them:
@@ -35,7 +35,7 @@ from typing import Any, Mapping
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from wt_inspect_env.validation import check_array, check_finite, check_range, check_unknown_options
+from wt_inspect_env.util.validation import check_array, check_finite, check_range, check_unknown_options
 
 EARTH_RADIUS_M = 6371000.0          # PX4's CONSTANTS_RADIUS_OF_EARTH (geo library)
 F_FRD_FLU = np.diag([1.0, -1.0, -1.0])                                   # FRD <-> FLU (its own inverse)

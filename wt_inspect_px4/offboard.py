@@ -42,12 +42,12 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
+from wt_inspect.commands.args import json_object
 from wt_inspect.evaluation import prepare_out_dir, registry
 from wt_inspect.evaluation.runner import RunResult, fly, make_spec, save_run
 from wt_inspect.evaluation.scenarios import SCENARIOS, env_options
-from wt_inspect_env.commands.args import json_object
 from wt_inspect_env.env import WindTurbineInspectionEnv
-from wt_inspect_env.hooks import TaskHooks
+from wt_inspect_env.task.hooks import TaskHooks
 
 from .frames import F_FRD_FLU, Site, SiteFrame, quat_wxyz_to_matrix
 from .link import OFFBOARD_MODE, LinkFaults

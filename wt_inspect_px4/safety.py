@@ -9,7 +9,7 @@ file's ``termination`` as ``hold:<reason>``.
 * geofence box: the mission's working volume (turbine and planned path, grown by ``box_margin``),
   grown to hold the start position, floored at ``min_altitude`` above the ground;
 * geofence clearance: distance from the drone's centre to the turbine mesh of the active rotor
-  position (:class:`~wt_inspect_env.proximity.TurbineProximity`, as the MPCs use it) at least
+  position (:class:`~wt_inspect_env.planner.proximity.TurbineProximity`, as the MPCs use it) at least
   ``min_clearance``;
 * speed: world speed at most ``max_speed``.
 """
@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from wt_inspect_env.proximity import TurbineProximity
-from wt_inspect_env.validation import check_positive
+from wt_inspect_env.planner.proximity import TurbineProximity
+from wt_inspect_env.util.validation import check_positive
 
 
 @dataclass(frozen=True)

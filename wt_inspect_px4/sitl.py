@@ -17,7 +17,7 @@ Physics through the public simulator interface only: PX4's motor commands ``u`` 
 thrusts through the preset's thrust curve (:class:`~.thrust.ThrustMap`) and first-order motor lag;
 the airframe's mixer matrix (``QuadrotorParams.mixer``) gives collective thrust and body torques;
 the rotational dynamics ``J w' = tau - w x J w`` are integrated here, and the simulator
-(:class:`~wt_inspect_env.sim.QuadrotorSim` with ``rate_loop=False``, one physics step per
+(:class:`~wt_inspect_env.world.sim.QuadrotorSim` with ``rate_loop=False``, one physics step per
 lock-step) carries the body with those rates, the collective thrust, drag, wind, ground and
 turbine contacts. The motor order is PX4's output order mapped onto the preset's rotors
 (``motor_map``); ``--print-params`` prints the PX4 geometry parameters (CA_ROTORn_*) that make
@@ -39,14 +39,14 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from wt_inspect.commands.args import json_object
 from wt_inspect.evaluation.scenarios import SCENARIOS, WIND_TYPES, env_options
-from wt_inspect_env.commands.args import json_object
-from wt_inspect_env.env_config import EnvConfig
-from wt_inspect_env.mission import build_mission
-from wt_inspect_env.quadrotor import GRAVITY, QuadrotorParams
-from wt_inspect_env.sim import QuadrotorSim, SimConfig
-from wt_inspect_env.validation import check_positive, check_unknown_options
-from wt_inspect_env.wind import make_wind
+from wt_inspect_env.physics.quadrotor import GRAVITY, QuadrotorParams
+from wt_inspect_env.physics.wind import make_wind
+from wt_inspect_env.task.env_config import EnvConfig
+from wt_inspect_env.task.mission import build_mission
+from wt_inspect_env.util.validation import check_positive, check_unknown_options
+from wt_inspect_env.world.sim import QuadrotorSim, SimConfig
 
 from .frames import F_FRD_FLU, Site, SiteFrame, ned_to_geodetic, quat_wxyz_to_matrix
 from .link import MavlinkLink, mavlink

@@ -4,7 +4,7 @@ Why: every policy here commands a collective thrust in newtons (``[p, q, r, T]``
 input), while PX4's SET_ATTITUDE_TARGET takes a normalised thrust in [0, 1]. PX4 treats the
 normalised set-point as linear in force and turns it into a motor command ``u`` by inverting its
 thrust model ``THR_MDL_FAC``: ``f / f_max = (1 - k) u + k u^2``. The vehicle's motors follow their
-own curve (the preset's :attr:`~wt_inspect_env.quadrotor.QuadrotorParams.thrust_curve`). So the set-point
+own curve (the preset's :attr:`~wt_inspect_env.physics.quadrotor.QuadrotorParams.thrust_curve`). So the set-point
 that produces a force ``f`` per rotor is ``n = model_px4(model_true^-1(f / f_max))`` - ``n = f / f_max``
 exactly when PX4's ``THR_MDL_FAC`` matches the motors.
 
@@ -18,8 +18,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from wt_inspect_env.quadrotor import QuadrotorParams
-from wt_inspect_env.validation import check_finite, check_positive, check_range
+from wt_inspect_env.physics.quadrotor import QuadrotorParams
+from wt_inspect_env.util.validation import check_finite, check_positive, check_range
 
 
 def curve(k: float, u: float) -> float:

@@ -46,7 +46,7 @@ def ocp_spec(policy: Any) -> dict[str, Any]:
     variant the peer does not write out: observer, camera heading, chord residual, clearance,
     several RK4 steps per stage, a path constraint)."""
     from controllers.vtnmpc import VTNMPCPolicy
-    from wt_inspect_env.quadrotor import GRAVITY
+    from wt_inspect_env.physics.quadrotor import GRAVITY
     if not isinstance(policy, VTNMPCPolicy):
         raise ValueError(f"the acados peer writes out the VT-NMPC only, got {type(policy).__name__}")
     c = policy.config

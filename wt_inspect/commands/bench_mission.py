@@ -32,7 +32,7 @@ from ..evaluation.scenarios import env_options
 
 def run_bench(controller: str = "vtnmpc-plus", wind: float = 4.0, max_time: float | None = None) -> dict:
     """Fly the mission once and return the split (see the module docstring)."""
-    from wt_inspect_env.commands.timing_reference import raw_pybullet_rate
+    from wt_inspect.commands.timing_reference import raw_pybullet_rate
 
     from ..evaluation import registry
     opts = env_options("paper", wind)

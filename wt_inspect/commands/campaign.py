@@ -64,9 +64,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_deferred, interrupts_raise
-from wt_inspect_env.wind import MAX_WIND_SPEED
+from wt_inspect_env.physics.wind import MAX_WIND_SPEED
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_deferred, interrupts_raise
 
 from ..evaluation import OutputDirError, prepare_out_dir, registry, resume_runs
 from ..evaluation.backends import BACKENDS, check_jobs, run_specs
@@ -181,7 +181,7 @@ def _nrel_turbine(scale: float) -> dict[str, Any]:
     """TurbineSpec fields of the NREL 5-MW preset scaled by ``scale`` (1: the preset itself)."""
     if scale == 1.0:
         return {"preset": "nrel-5mw"}
-    from wt_inspect_env.turbine_presets import NREL_5MW_HUB_RADIUS, NREL_5MW_TIP_RADIUS, get_turbine_preset
+    from wt_inspect_env.turbine.presets import NREL_5MW_HUB_RADIUS, NREL_5MW_TIP_RADIUS, get_turbine_preset
     preset = get_turbine_preset("nrel-5mw")
     return {"preset": "nrel-5mw", **{k: scale * float(preset[k]) for k in NREL_SCALED_LENGTHS},
             "blade_length": scale * (NREL_5MW_TIP_RADIUS - NREL_5MW_HUB_RADIUS)}
@@ -279,7 +279,7 @@ def clear_start(env: Any, spec: RunSpec) -> tuple[list[float], int]:
     """The episode's start offset with its start at least ``START_CLEARANCE_RATIO * d_ref`` from
     the turbine: the drawn one, or the first of up to ``MAX_START_REDRAWS`` directions redrawn
     (same length, no downward part) that is. Returns the offset and the number of redraws."""
-    from wt_inspect_env.proximity import MeshProximity
+    from wt_inspect_env.planner.proximity import MeshProximity
     u = env.unwrapped
     near = MeshProximity(u.mission.turbines[0].mesh.triangles)   # the start's rotor position only
     need = START_CLEARANCE_RATIO * float(u.config.standoff)
@@ -301,7 +301,7 @@ def run_episode(spec: RunSpec, factory: Any = None, *, record: bool = True, prog
     """One campaign episode (the backends' ``task``): build, fly, count fallbacks, measure RSS;
     any exception is caught and returned as the episode's result (``termination="exception"``,
     the message in ``metrics["error"]``) so that one failing episode does not end the campaign."""
-    from wt_inspect_env.process_memory import release_free_heap, rss_mb
+    from wt_inspect_env.util.process_memory import release_free_heap, rss_mb
     t0 = time.perf_counter()
     env = None
     counter = None
@@ -428,7 +428,7 @@ def summarise(rows: Sequence[Mapping[str, Any]], d_min: float | None = None) -> 
 
 
 def _d_min() -> float:
-    from wt_inspect_env.env_config import EnvConfig
+    from wt_inspect_env.task.env_config import EnvConfig
     return float(EnvConfig().d_min)     # the episodes fly the default stand-off
 
 
@@ -601,7 +601,7 @@ def _figure(rows: Sequence[Mapping[str, Any]], path: Path, d_min: float) -> Path
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from wt_inspect_env.figure_io import save_and_close
+    from wt_inspect_env.util.figure_io import save_and_close
     fig, axes = plt.subplots(3, 4, figsize=(14, 9))
     worst_m = worst_by_metric(rows)
     for ax, (col, label, unit, scale, _worse) in zip(axes.flat, METRICS[:10]):
@@ -880,7 +880,7 @@ def _comparison_figure(names: Sequence[str], rows: Mapping[str, Mapping[int, Map
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from wt_inspect_env.figure_io import save_and_close
+    from wt_inspect_env.util.figure_io import save_and_close
     shown = METRICS[:9]
     fig, axes = plt.subplots(3, 3, figsize=(4 + 1.6 * len(names) * 3, 9))
     for ax, (col, label, unit, scale, _worse) in zip(axes.flat, shown):

@@ -4,7 +4,7 @@
 environment that has acados (the ``comma-deps-acados`` wheel, which brings its own CasADi, so it
 must not share this project's environment). It imports nothing from this project: the problem
 arrives as numbers in a JSON request and the formulas are written out here a second time, from the
-definitions in :mod:`controllers.vtnmpc` and :mod:`wt_inspect_env.dynamics`:
+definitions in :mod:`controllers.vtnmpc` and :mod:`wt_inspect_env.physics.dynamics`:
 
 * model: p' = R(q) v_B, v_B' = -w x v_B + R(q)^T (g_W + a_ext) + (0, 0, T/m), q' = q (x) (w, 0) / 2
   with x = [p, v_B, q_xyzw], u = [w, T]; one classic RK4 step per stage (acados ERK, 4 stages);

@@ -23,8 +23,8 @@ import sys
 from pathlib import Path
 from typing import Any, Mapping
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.commands.args import json_object
+from wt_inspect.commands.args import json_object
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 from ..evaluation.runner import load_run, rescore_coverage
 

@@ -52,8 +52,8 @@ from typing import Any, Mapping, Sequence
 
 import optuna
 
-from wt_inspect_env.atomic_io import check_out_dir, write_text_atomic
-from wt_inspect_env.figure_io import save_and_close
+from wt_inspect_env.util.atomic_io import check_out_dir, write_text_atomic
+from wt_inspect_env.util.figure_io import save_and_close
 
 from ..evaluation import evaluate_policy, registry
 from ..evaluation.backends import check_jobs

@@ -38,9 +38,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Mapping, Sequence
 
-from wt_inspect_env.figure_io import check_figure_format
-from wt_inspect_env.interrupts import interrupts_deferred, interrupts_raise
-from wt_inspect_env.ray_session import check_ray_address, import_ray
+from wt_inspect_env.util.figure_io import check_figure_format
+from wt_inspect_env.util.interrupts import interrupts_deferred, interrupts_raise
+from wt_inspect_env.util.ray_session import check_ray_address, import_ray
 
 from . import registry
 from .backends import BACKENDS, check_jobs, run_specs

@@ -18,8 +18,8 @@ each worker asks the kernel for SIGKILL when its parent dies (``prctl(PR_SET_PDE
 every platform a daemon thread in the worker exits it once its parent is gone (reparenting changes
 ``os.getppid()``), so a SIGKILLed ``wt-inspect evaluate`` leaves no worker behind - and with the
 workers gone the resource tracker, which exits when the last holder of its pipe does, follows.
-SIGTERM of the parent is turned into :class:`~wt_inspect_env.interrupts.Terminated` (a
-``KeyboardInterrupt``) while runs execute (:func:`~wt_inspect_env.interrupts.interrupts_raise`, with
+SIGTERM of the parent is turned into :class:`~wt_inspect_env.util.interrupts.Terminated` (a
+``KeyboardInterrupt``) while runs execute (:func:`~wt_inspect_env.util.interrupts.interrupts_raise`, with
 any number of jobs), so the pool is terminated and the finished runs' files are written as on Ctrl-C.
 """
 from __future__ import annotations
@@ -36,9 +36,9 @@ import threading
 import time
 from typing import Any, Callable, Mapping, Sequence
 
-from wt_inspect_env.interrupts import Terminated, interrupts_raise  # noqa: F401 - Terminated: re-exported
-from wt_inspect_env.process_memory import release_free_heap
-from wt_inspect_env.ray_session import import_ray, init_ray
+from wt_inspect_env.util.interrupts import Terminated, interrupts_raise  # noqa: F401 - Terminated: re-exported
+from wt_inspect_env.util.process_memory import release_free_heap
+from wt_inspect_env.util.ray_session import import_ray, init_ray
 
 from .runner import RunResult, RunSpec, execute
 

@@ -19,9 +19,9 @@ import argparse
 import sys
 from typing import Any
 
-from wt_inspect_env.commands.args import json_object as _json
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
-from wt_inspect_env.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_raise, signal_name
+from wt_inspect.commands.args import json_object as _json
+from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
+from wt_inspect_env.util.interrupts import EXIT_INTERRUPTED, interrupted_message, interrupts_raise, signal_name
 
 from . import OutputDirError, command_line, run_evaluation
 from .backends import BACKENDS

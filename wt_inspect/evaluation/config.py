@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT
+from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT
 
 # key -> kind; the kinds are checked by _check below.
 KINDS: dict[str, str] = {

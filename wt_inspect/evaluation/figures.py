@@ -31,7 +31,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Poly3DCollection  # noqa: E402
 
-from wt_inspect_env.figure_io import DEFAULT_FIGURE_FORMAT, check_figure_format, save_and_close  # noqa: E402
+from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, check_figure_format, save_and_close  # noqa: E402
 
 from .registry import display_name  # noqa: E402
 from .report import order_controllers  # noqa: E402
@@ -239,7 +239,7 @@ def _blade_layout(a: dict[str, np.ndarray], spec_env: dict) -> tuple[np.ndarray,
     before they were stored - from the turbine rebuilt from the run's options (same numbering)."""
     if "triangle_face" in a:
         return a["triangle_blade"], a["triangle_face"], a["rotor_center"]
-    from wt_inspect_env.turbine import TurbineSpec, build_turbine, load_turbine_mesh
+    from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
     mesh = spec_env.get("turbine_mesh")
     turb = load_turbine_mesh(mesh) if mesh else build_turbine(TurbineSpec(**(spec_env.get("turbine") or {})))
     return turb.triangle_blade, turb.triangle_face, turb.rotor_center

@@ -1,6 +1,6 @@
 """What the harness measures beside the environment's metrics: clearance to the turbine, energy.
 
-The environment's :class:`~wt_inspect_env.metrics.InspectionMetrics` judge the inspection: their
+The environment's :class:`~wt_inspect_env.task.metrics.InspectionMetrics` judge the inspection: their
 distances (``min_distance_m`` ...) are to the *inspection point*, the moving target on the blade
 the camera should look at. That says nothing about how close the drone came to the *structure*:
 passing a blade edge, the hub or the tower 2 m away while the point is 7 m off shows as "minimum
@@ -16,7 +16,7 @@ Clearance to the turbine (``clearance_*``)
     (``env._set_phase`` on the reference's ``hold_started``), so sample k uses mesh number
     ``(number of holds started at or before k)``, i.e. the count of rising edges of
     ``info["waiting_for_phase_change"]`` (:func:`geometry_index`). Distances come from the same
-    :class:`~wt_inspect_env.proximity.MeshProximity` the MPCs' clearance constraint uses, made
+    :class:`~wt_inspect_env.planner.proximity.MeshProximity` the MPCs' clearance constraint uses, made
     exact (not just "exact when the nearest triangle's centroid is among the candidates") for
     every sample that can decide the minimum or the time below d_min (:func:`mesh_clearance`).
 
@@ -29,11 +29,11 @@ Clearance to the turbine (``clearance_*``)
     * ``time_below_d_min_s``: the simulated time with ``clearance < d_min``, each sample k >= 1
       counting for the step that ends at it (``t_k - t_{k-1}``);
     * ``d_min_m``: the threshold, the environment's ``d_min`` (default 3/7 d_ref, 3 m at the paper's
-      7 m stand-off: :data:`~wt_inspect_env.env_config.D_MIN_RATIO`), which the MPCs' constraint keeps
+      7 m stand-off: :data:`~wt_inspect_env.task.env_config.D_MIN_RATIO`), which the MPCs' constraint keeps
       for the centre - so the centre's clearance is what is compared with it.
 
 Energy (``energy_wh``, ``mean_power_w``)
-    ``P_k`` = :func:`~wt_inspect_env.quadrotor.electrical_power` of the four rotor thrusts at
+    ``P_k`` = :func:`~wt_inspect_env.physics.quadrotor.electrical_power` of the four rotor thrusts at
     sample k (the simulator's lagged, saturated rotor state, times the plant's thrust factor) for
     the airframe that flies (the randomised plant, if any): momentum theory's hover induced power
     per rotor over a figure of merit and a motor + ESC efficiency, summed over the rotors.
@@ -49,9 +49,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from wt_inspect_env.env_config import D_MIN_RATIO  # noqa: F401  (re-exported: the metric's threshold ratio)
-from wt_inspect_env.proximity import MeshProximity
-from wt_inspect_env.quadrotor import QuadrotorParams, electrical_power
+from wt_inspect_env.physics.quadrotor import QuadrotorParams, electrical_power
+from wt_inspect_env.planner.proximity import MeshProximity
+from wt_inspect_env.task.env_config import D_MIN_RATIO  # noqa: F401  (re-exported: the metric's threshold ratio)
 
 _CHUNK = 4096            # points per vectorised proximity query (bounds the temporary arrays)
 _CANDIDATES = 24         # nearest triangles per point: twice the MPCs' 12, at the same cost vectorised

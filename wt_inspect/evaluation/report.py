@@ -28,8 +28,8 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.env_config import EnvConfig
+from wt_inspect_env.task.env_config import EnvConfig
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 from .registry import display_name
 from .runner import RunResult
@@ -203,7 +203,7 @@ def _values_of(results: Sequence[RunResult], key: str, fmt: Callable[[float], st
 
 def _energy_note(results: Sequence[RunResult]) -> str:
     """The drones' power-model parameters and hover power, from the runs' options (their preset)."""
-    from wt_inspect_env.quadrotor import QuadrotorParams, get_preset
+    from wt_inspect_env.physics.quadrotor import QuadrotorParams, get_preset
     default = EnvConfig().drone
     names = sorted({str(r.spec.env_options.get("drone", default if isinstance(default, str) else default.name))
                     for r in results}) or ["matrice100"]
@@ -312,7 +312,7 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                if any(paper_cols.values()) else
                "- No paper columns: the paper has no numbers for this scenario and wind. Solve times are the "
                "policy's own time per control step on the machine below."),
-              "- Metrics (wt_inspect_env.metrics): coverage = share of the mission's blade triangles seen at least "
+              "- Metrics (wt_inspect_env.task.metrics): coverage = share of the mission's blade triangles seen at least "
               f"once ({_frames_note(results)}); SM = share of inspecting samples with "
               "|d - d_ref| below the margin, d the horizontal distance to the inspection point; CM = mean heading "
               "function h of the gimbal camera (the horizontal part of the body x axis, as the authors' code "

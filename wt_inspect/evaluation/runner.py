@@ -66,8 +66,8 @@ import gymnasium as gym
 import numpy as np
 
 import wt_inspect_env  # noqa: F401 - registers the environment ids
-from wt_inspect_env.atomic_io import atomic_path
-from wt_inspect_env.geometry import camera_heading, heading_and_distance
+from wt_inspect_env.task.geometry import camera_heading, heading_and_distance
+from wt_inspect_env.util.atomic_io import atomic_path
 
 from . import registry
 from .harness_metrics import clearance_metrics, energy_metrics, geometry_index, mesh_clearance, rotor_power

@@ -1,6 +1,6 @@
 """Evaluation scenarios: the paper's setups as environment options, and the paper's own numbers.
 
-A :class:`Scenario` is a named set of :class:`~wt_inspect_env.env_config.EnvConfig` options plus
+A :class:`Scenario` is a named set of :class:`~wt_inspect_env.task.env_config.EnvConfig` options plus
 the wind speeds swept by default. :func:`env_options` turns (scenario, wind speed, overrides)
 into the exact ``gym.make`` keyword options of one run, so the command line, the Python API and
 every backend build the same environment from the same plain, JSON-serialisable data.
@@ -18,7 +18,7 @@ Scenarios (section "Simulations" and "Real-World Experiments" of the paper):
   departs from them: their camera and coverage rule (35 mm lens on the 23.5 x 15.7 mm sensor; a
   triangle counts when its normal is within 80 deg of the reversed optical axis, its centre within
   10 m, its centre and vertices inside the image, no occlusion test), the open-loop reference at
-  their ~0.7 m/s (slowing where the normal turns, :mod:`wt_inspect_env.reference`), and their 200 Hz
+  their ~0.7 m/s (slowing where the normal turns, :mod:`wt_inspect_env.task.reference`), and their 200 Hz
   control loop (physics 400 Hz). Everything else is the paper's as in ``paper`` (drag 2.9 N per m/s,
   hover thrust reference, d_ref 7 m, SM margin 1 m, the gust). The baselines as the authors ran them
   are the controllers ``nmpc-authors`` and ``pampc-authors``; ``wt-inspect ablation`` walks from
@@ -38,9 +38,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any, Mapping
 
-from wt_inspect_env.env_config import EnvConfig
-from wt_inspect_env.validation import check_choice, check_unknown_options
-from wt_inspect_env.wind import check_wind_speed
+from wt_inspect_env.physics.wind import check_wind_speed
+from wt_inspect_env.task.env_config import EnvConfig
+from wt_inspect_env.util.validation import check_choice, check_unknown_options
 
 WIND_TYPES = ("gust", "dryden")
 
@@ -146,7 +146,7 @@ def paper_numbers(scenario: str, wind: float, controller: str) -> dict[str, floa
 
 
 def wind_spec(wind: float, wind_type: str = "gust", wind_options: Mapping[str, Any] | None = None) -> Any:
-    """The wind spec (for :func:`~wt_inspect_env.wind.make_wind`) of a mean speed [m/s]."""
+    """The wind spec (for :func:`~wt_inspect_env.physics.wind.make_wind`) of a mean speed [m/s]."""
     check_choice("wind_type", wind_type, WIND_TYPES)
     w = check_wind_speed("wind speed", wind)   # [0, MAX_WIND_SPEED]: --winds 1e9 is refused here
     opts = dict(wind_options or {})

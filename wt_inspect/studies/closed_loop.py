@@ -4,7 +4,7 @@ that flies a policy on it (:func:`run_closed_loop`).
 
 The controller tests and the studies (:mod:`wt_inspect.studies.wind_offset`) use it to fly an MPC
 in isolation, in milliseconds per step. The plant only needs ``reset(state)``, ``step(command)``
-and a ``state`` property, so the PyBullet simulator (:class:`wt_inspect_env.sim.QuadrotorSim`) can
+and a ``state`` property, so the PyBullet simulator (:class:`wt_inspect_env.world.sim.QuadrotorSim`) can
 be passed instead of :class:`ModelPlant`. The benchmark (``wt-inspect bench solver``) flies the real
 environment instead.
 """
@@ -16,11 +16,11 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from wt_inspect_env.dynamics import QuadrotorModel, quat_to_rotmat_np
-from wt_inspect_env.geometry import heading_and_distance, standoff_state
-from wt_inspect_env.quadrotor import QuadrotorParams, drag_force
-from wt_inspect_env.spaces import ActionScaling
-from wt_inspect_env.validation import check_array, check_positive
+from wt_inspect_env.physics.dynamics import QuadrotorModel, quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import QuadrotorParams, drag_force
+from wt_inspect_env.task.geometry import heading_and_distance, standoff_state
+from wt_inspect_env.task.spaces import ActionScaling
+from wt_inspect_env.util.validation import check_array, check_positive
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,7 @@ class ModelPlant:
     """The shared CasADi model integrated with RK4 at ``substeps`` per control step: a stand-in
     for the PyBullet simulator with the same ``reset``/``step``/``state`` interface.
 
-    The plant has the simulator's drag (:func:`wt_inspect_env.quadrotor.drag_force` of the airspeed
+    The plant has the simulator's drag (:func:`wt_inspect_env.physics.quadrotor.drag_force` of the airspeed
     v_B - R^T v_wind), which the controllers' model (like the paper's) does not know;
     ``wind(t, positions) -> velocities`` (world) sets the air velocity (still air without it).
     """

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from agents.curves import plot_routes, route_points
 from agents.seeds import TARGET
-from wt_inspect_env.atomic_io import write_text_atomic
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 DEFAULT_OUT = Path("results/training/routes")
 ROUTES = {

@@ -54,7 +54,7 @@ class Scene:
 
     def nearest(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Nearest point of the active rotor position's collision mesh and the outward direction."""
-        from wt_inspect_env.proximity import MeshProximity
+        from wt_inspect_env.planner.proximity import MeshProximity
         i = self.u.phase_index
         if i not in self._near:
             self._near[i] = MeshProximity(self.u.mission.turbines[i].mesh.triangles)
@@ -75,7 +75,7 @@ class FlyAt:
         pass
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
-        from wt_inspect_env.dynamics import quat_to_rotmat_np
+        from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
         u = self.u
         p, q = np.asarray(obs["position"], float), np.asarray(obs["quaternion"], float)
         R = quat_to_rotmat_np(q)
@@ -247,7 +247,7 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
     from tqdm import tqdm
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
-    from wt_inspect_env.atomic_io import write_text_atomic
+    from wt_inspect_env.util.atomic_io import write_text_atomic
     chunks = out / "chunks"
     chunks.mkdir(parents=True, exist_ok=True)
     scenes: dict[int, Scene] = {}
@@ -340,7 +340,7 @@ def main(argv: list[str], prog: str = "wt-inspect study safety-filter") -> int:
     args = ap.parse_args(argv)
     if args.starts < 1:
         ap.error(f"--starts must be >= 1, got {args.starts}")
-    from wt_inspect_env.atomic_io import write_text_atomic
+    from wt_inspect_env.util.atomic_io import write_text_atomic
     out = Path(args.out)
     rows = run(args.starts, out, seed=args.seed, progress=not args.no_progress)
     s = summary(rows)

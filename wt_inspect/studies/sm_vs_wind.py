@@ -28,8 +28,8 @@ from pathlib import Path
 
 from wt_inspect.evaluation.report import read_csv
 from wt_inspect.evaluation.scenarios import paper_numbers
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.figure_io import save_and_close
+from wt_inspect_env.util.atomic_io import write_text_atomic
+from wt_inspect_env.util.figure_io import save_and_close
 
 CONTROLLERS = {"nmpc-authors": ("nmpc", "NMPC as the authors ran it"),
                "pampc-authors": ("pampc", "PAMPC as the authors ran it"),

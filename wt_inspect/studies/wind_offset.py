@@ -19,8 +19,8 @@ import numpy as np
 from controllers.nmpc import NMPCPolicy
 from controllers.pampc import PAMPCConfig, PAMPCPolicy
 from controllers.vtnmpc import VTNMPCPolicy
-from wt_inspect_env.atomic_io import write_text_atomic
-from wt_inspect_env.quadrotor import get_preset
+from wt_inspect_env.physics.quadrotor import get_preset
+from wt_inspect_env.util.atomic_io import write_text_atomic
 
 from .closed_loop import ModelPlant, SurfacePass, run_closed_loop
 

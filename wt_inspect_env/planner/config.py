@@ -5,7 +5,7 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, Mapping
 
-from ..validation import (
+from ..util.validation import (
     check_array,
     check_choice,
     check_field_types,

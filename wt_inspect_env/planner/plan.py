@@ -50,8 +50,8 @@ from typing import Any
 
 import numpy as np
 
-from ..atomic_io import atomic_path
-from ..turbine import TurbineMesh, rotation_matrix
+from ..turbine.model import TurbineMesh, rotation_matrix
+from ..util.atomic_io import atomic_path
 from .clearance import Clearance, DistanceField, detour_frame, detour_offsets
 from .clustering import Surface, cluster_surfaces, describe_surface
 from .config import PlannerConfig

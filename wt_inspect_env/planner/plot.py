@@ -20,7 +20,7 @@ from matplotlib.lines import Line2D
 from matplotlib.ticker import MaxNLocator
 from mpl_toolkits.mplot3d.art3d import Line3DCollection, Poly3DCollection
 
-from ..figure_io import DEFAULT_FIGURE_FORMAT, save_figure
+from ..util.figure_io import DEFAULT_FIGURE_FORMAT, save_figure
 from .plan import InspectionPlan
 
 

@@ -3,7 +3,7 @@
 ``gym.make_vec(env_id, num_envs=N, vectorization_mode="vector_entry_point", **options)`` reaches
 :class:`WindTurbineInspectionVectorEnv` for every registered task.
 """
-from ..batched_sim import BatchedQuadrotorSim
+from ..world.batched_sim import BatchedQuadrotorSim
 from .env import WindTurbineInspectionVectorEnv
 
 __all__ = ["WindTurbineInspectionVectorEnv", "BatchedQuadrotorSim"]

@@ -3,15 +3,15 @@
 ``gym.make_vec("WindTurbineInspection-v0", num_envs=N, vectorization_mode="vector_entry_point",
 **options)`` builds :class:`WindTurbineInspectionVectorEnv` for any registered task. Drone ``i``
 is the single :class:`~wt_inspect_env.env.WindTurbineInspectionEnv` made with the same options:
-both are adapters over one :class:`~wt_inspect_env.world.InspectionWorld` (the single env is its
+both are adapters over one :class:`~wt_inspect_env.world.world.InspectionWorld` (the single env is its
 N = 1 case), so drone ``i`` has its own seed (``reset(seed=s)`` seeds drone ``i`` with ``s + i``),
 wind field, reference, coverage, metrics and episode clock, and under the same actions the same
 observations, rewards, terminations, coverage and metrics, bit for bit (tested for N = 1, 4, 16
-across autoresets and the rotor turn). ``hooks=`` (a :class:`~wt_inspect_env.hooks.TaskHooks`)
+across autoresets and the rotor turn). ``hooks=`` (a :class:`~wt_inspect_env.task.hooks.TaskHooks`)
 changes the task for both.
 
 What is shared: the planned mission (one turbine, one task), the PyBullet client
-(:class:`~wt_inspect_env.batched_sim.BatchedQuadrotorSim`) and the camera-ray batch. Per-drone wind
+(:class:`~wt_inspect_env.world.batched_sim.BatchedQuadrotorSim`) and the camera-ray batch. Per-drone wind
 is supported (``winds=[spec_0, ..., spec_N-1]``); per-drone turbines or tasks are not (one mission
 is planned per vector env - make one vector env per turbine) and are refused with a clear error.
 Domain randomisation (``randomization=...``) is drawn per drone from drone ``i``'s stream exactly as
@@ -39,11 +39,11 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from ..env import observation_space
-from ..env_config import EnvConfig
-from ..hooks import TaskHooks
-from ..validation import check_actions
-from ..wind import make_wind
-from ..world import InspectionWorld
+from ..physics.wind import make_wind
+from ..task.env_config import EnvConfig
+from ..task.hooks import TaskHooks
+from ..util.validation import check_actions
+from ..world.world import InspectionWorld
 
 
 def _check_num_envs(num_envs: Any) -> int:
@@ -206,7 +206,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     # ------------------------------------------------------------------ queries
     def metrics(self, i: int) -> dict[str, float]:
-        """The :class:`~wt_inspect_env.metrics.InspectionMetrics` (as a dict) of drone ``i``'s episode so far."""
+        """The :class:`~wt_inspect_env.task.metrics.InspectionMetrics` (as a dict) of drone ``i``'s episode so far."""
         return self.world.metrics(int(i)).to_dict()
 
     @property

@@ -1,1 +1,0 @@
-"""Command-line subcommands of ``wt-inspect`` that need only the environment package."""
