@@ -57,6 +57,13 @@ def test_the_runs_of_a_study_are_planned_from_its_commands():
     adv = behaviour.study_runs(["wt-inspect study safety-filter --starts 3 --out x"])
     assert [(r.runner, r.spec["start"], r.spec["filtered"]) for r in adv] == [
         ("adversary", k, f) for k in range(3) for f in (False, True)]
+    # a tuning study: its first trial (the controller's own weights) on each of its winds, flown as the
+    # registered controller's evaluation run
+    tune = behaviour.study_runs(["wt-inspect tune --controller pampc --scenario lab --trials 3 --winds 4,7 --out x"])
+    assert [(r.runner, r.spec.controller, r.spec.scenario, r.spec.wind) for r in tune] == [
+        ("evaluate", "pampc", "lab", 4.0), ("evaluate", "pampc", "lab", 7.0)]
+    sweep = behaviour.study_runs(["wt-inspect study pose-sweep --azimuths 0:20:10 --facings=0 --out x"])
+    assert [r.spec.env_options["turbine"]["rotor_azimuth_deg"] for r in sweep] == [0.0, 10.0, 20.0]
     # commands that fly nothing have no digest; the first and the last run carry it
     assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
     assert [r.spec.controller for r in behaviour.digested_runs(

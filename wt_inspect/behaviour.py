@@ -19,8 +19,9 @@ that different controllers, winds or rows are covered, and the full regeneration
 
 The runs of a study are those its commands would fly, planned from the commands themselves with
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
-``study safety-filter`` / ``study pose-sweep`` fly runs here. A study whose commands fly nothing
-(training, tuning, analyses) has no digest; its staleness is decided by the code version as before.
+``study safety-filter`` / ``study pose-sweep`` fly runs here, and ``tune`` its first trial (the
+controller's own weights). A study whose commands fly nothing (training, analyses) has no digest;
+its staleness is decided by the code version as before.
 """
 from __future__ import annotations
 
@@ -137,8 +138,22 @@ def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
     return []
 
 
+def _tune_runs(argv: Sequence[str]) -> list[StudyRun]:
+    """``wt-inspect tune``: its first trial, which flies the controller's own weights (all
+    multipliers 1, enqueued before the sampler's), on each wind - the registered controller's
+    evaluation run. The sampler's draws are Optuna's and not digested."""
+    from .commands.tune import build_parser
+    from .evaluation import make_spec
+    from .evaluation.scenarios import env_options
+    a = build_parser("wt-inspect tune").parse_args(list(argv))
+    return [StudyRun("evaluate", make_spec(a.scenario, a.controller, float(w), a.seed,
+                                           env_options(a.scenario, float(w)), a.max_time, 1))
+            for w in a.winds]
+
+
 _PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {
-    "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs, "study": _study_runs}
+    "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs, "study": _study_runs,
+    "tune": _tune_runs}
 
 
 def study_runs(commands: Sequence[str]) -> list[StudyRun]:

@@ -162,7 +162,7 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from wt_inspect_env.figure_io import save_and_close
+    from wt_inspect_env.util.figure_io import save_and_close
     controllers = list(dict.fromkeys(r["controller"] for r in rows))
     fig, axes = plt.subplots(1, len(controllers), figsize=(4.5 * len(controllers) + 1, 4.5), squeeze=False)
     for ax, c in zip(axes[0], controllers):
@@ -191,7 +191,7 @@ def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
         specs = planned_specs(argv)
     except ValueError as exc:
         ap.error(str(exc))
-    from wt_inspect_env.atomic_io import write_text_atomic
+    from wt_inspect_env.util.atomic_io import write_text_atomic
 
     from ..evaluation import prepare_out_dir, resume_runs, save_run
     from ..evaluation.backends import check_jobs, run_specs
