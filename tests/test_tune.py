@@ -95,14 +95,19 @@ def test_two_trials_write_best_weights_that_build_a_controller_and_a_rerun_resum
     finally:
         env.close()
 
-    # same storage and study name: two more trials, in two worker processes sharing the storage
-    assert tune.main([*args, "--trials", "2", "--jobs", "2"]) == 0
+    # same storage and study name, --trials 4: the two missing trials, in two worker processes
+    # sharing the storage; the same command again adds none
+    assert tune.main([*args, "--trials", "4", "--jobs", "2"]) == 0
     study = optuna.load_study(study_name="vtnmpc-surface", storage=f"sqlite:///{out.resolve() / 'study.db'}")
     assert [t.state for t in study.trials] == [optuna.trial.TrialState.COMPLETE] * 4
     assert study.trials[0].params == {k: 1.0 for k in tune.blocks(VTNMPCWeights())}
     assert len({tuple(sorted(t.params.items())) for t in study.trials}) == 4     # no point flown twice
     assert len(list(csv.DictReader((out / "trials.csv").open()))) == 4
     assert json.loads((out / "tune.json").read_text())["added_now"] == 2
+    assert tune.main([*args, "--trials", "4"]) == 0
+    assert "0 trials added (4 in total" in capsys.readouterr().out
+    assert len(optuna.load_study(study_name="vtnmpc-surface",
+                                 storage=f"sqlite:///{out.resolve() / 'study.db'}").trials) == 4
 
 
 def test_a_trial_below_the_median_after_the_first_wind_is_pruned(tmp_path, monkeypatch):

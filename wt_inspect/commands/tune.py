@@ -23,9 +23,11 @@ a trial whose running mean is below the median of earlier trials at the same win
 scores whole runs, so the wind is the pruning step; with one wind nothing is pruned).
 
 Parallel and resumable through Optuna's storage (default ``sqlite:///OUT/study.db``): ``--jobs N``
-runs N worker processes on the same study, and rerunning with the same storage and ``--study``
-adds ``--trials`` more trials to it (the sampler's seed is offset by the trials already there, so a
-resumed study does not repeat its first random points). Outputs, each written atomically::
+runs N worker processes on the same study. ``--trials`` is the study's size: rerunning with the
+same storage and ``--study`` runs only the trials still missing (an interrupted study resumes to
+its size, a finished one gets none and its outputs are rewritten; raise ``--trials`` to search on;
+the sampler's seed is offset by the trials already there, so a resumed study does not repeat its
+first random points). Outputs, each written atomically::
 
     OUT/best_weights.json     the best trial's full weights (accepted by NAME:weights=FILE)
     OUT/trials.csv            one row per trial: state, value, per-wind scores, multipliers, wall time
@@ -237,12 +239,14 @@ def tune(cfg: TuneConfig) -> dict[str, Any]:
     study = _study(cfg)
     before = len(study.trials)
     study.sampler = optuna.samplers.TPESampler(seed=cfg.seed + before)
-    todo = cfg.trials
+    # --trials is the study's size: a rerun runs only the trials still missing, so an interrupted
+    # study resumes to the same size and rerunning a finished one (wt-inspect reproduce) adds none
+    todo = max(cfg.trials - _finished(study), 0)
     t0 = time.perf_counter()
-    bar = tqdm(total=cfg.trials, desc=f"tune {cfg.study_name}", unit="trial", disable=not cfg.progress)
+    bar = tqdm(total=todo, desc=f"tune {cfg.study_name}", unit="trial", disable=not cfg.progress)
     tick = [lambda s, t: bar.update(1)]
     try:
-        if before == 0:   # the controller's own weights first, in this process (workers racing for an
+        if before == 0 and todo:   # the controller's own weights first, in this process (workers racing for an
             # enqueued trial on SQLite can run it twice): the baseline every trial is compared with
             study.enqueue_trial({k: 1.0 for k in blocks(weights)})
             study.optimize(objective, n_trials=1, catch=(), callbacks=tick)
