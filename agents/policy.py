@@ -15,7 +15,8 @@ trusts the file (``trust_model``).
 observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> network
 (deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action;
 the network's action is held for ``action_repeat`` control steps and decoded at each of them with
-the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation harness resolves ``ppo:PATH`` /
+the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation
+harness resolves ``ppo:PATH`` /
 ``sac:PATH`` controller names through it. :func:`agent_env` is the same pipeline as an env wrapper,
 for code that drives the bare SB3 model itself (``model.predict(obs)`` on the wrapped env).
 """

@@ -133,7 +133,8 @@ def check_seed_bases(resume: str | Path | None, seeds: Sequence[int]) -> None:
             raise ValueError(f"--resume: no model {base!r} for seed {s}")
 
 
-def _unfinished(seeds: Sequence[int], out: Path, kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
+def _unfinished(seeds: Sequence[int], out: Path,
+                kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
     return [({**kwargs, "resume": seed_base(kwargs.get("resume"), s)}, s, out / f"seed_{s}")
             for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
 

@@ -356,9 +356,11 @@ class InspectionAgentEnv(gym.Wrapper):
         self.encoder.note_action(u)
         total = shaped = 0.0
         obs = self._raw
-        for k in range(self.spec_.action_repeat):
+        n_steps = 0
+        for _ in range(self.spec_.action_repeat):
             # the held *policy* action is decoded at every control step with the current attitude
             obs, reward, terminated, truncated, info = self.env.step(self.decoder(u, obs["quaternion"]))
+            n_steps += 1
             self.encoder.update(obs)
             total += reward
             if self._coarse_w > 0.0 and not terminated:
@@ -369,7 +371,7 @@ class InspectionAgentEnv(gym.Wrapper):
             if terminated or truncated:
                 break
         self._raw = obs
-        info["env_steps"] = k + 1
+        info["env_steps"] = n_steps
         info["shaping_reward"] = shaped
         total += shaped
         return self.encoder.features(), float(total), terminated, truncated, info

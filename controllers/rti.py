@@ -955,7 +955,7 @@ class IpoptOCPSolver:
             return
         ocp = self.ocp
         nz, nx, N = ocp.nx + ocp.nu, ocp.nx, ocp.horizon
-        for vec, step in ((self._w, nz), (self._lam_x, nz)):
+        for vec in (self._w, self._lam_x):
             if vec is None:
                 continue
             n_body = N * nz

@@ -509,7 +509,8 @@ def main(argv: list[str], prog: str = "wt-inspect fly") -> int:
     term = flight.termination
     m = flight.result.metrics if flight.result is not None else {}
     print(f"flight ended: {term}; coverage {m.get('coverage', math.nan):.3f}, SM {m.get('safety_sm', math.nan):.3f}, "
-          f"CM {m.get('centering_cm', math.nan):.3f}; hold {'confirmed' if flight.hold_confirmed else 'NOT confirmed'}; "
+          f"CM {m.get('centering_cm', math.nan):.3f}; "
+          f"hold {'confirmed' if flight.hold_confirmed else 'NOT confirmed'}; "
           f"wrote {flight.run_file}, {flight.tlog}, {flight.summary_file}")
     if not flight.hold_confirmed:
         return 4

@@ -200,8 +200,9 @@ class HilVehicle:
         lat, lon, alt = ned_to_geodetic(p, self.config.origin)
         speed = math.hypot(v[0], v[1])
         cog = (math.degrees(math.atan2(v[1], v[0])) % 360.0) if speed > 0.1 else 0.0
-        return mav.hil_gps_encode(self.time_usec, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1e3)),
-                                  100, 100, int(speed * 100), *(int(round(c * 100)) for c in v), int(cog * 100), 10, 0, 0)
+        return mav.hil_gps_encode(self.time_usec, 3, int(round(lat * 1e7)), int(round(lon * 1e7)),
+                                  int(round(alt * 1e3)), 100, 100, int(speed * 100),
+                                  *(int(round(c * 100)) for c in v), int(cog * 100), 10, 0, 0)
 
     def state_message(self, mav: Any) -> Any:
         p, q, v, R = self._ned()
@@ -282,7 +283,8 @@ class SitlServer:
                 if self._controls is None:           # PX4 not answering yet: free-run
                     self._cv.wait(v.dt / max(speed, 1e-3) if speed else v.dt)
                 else:
-                    ok = self._cv.wait_for(lambda: self._controls[1] != last_seq or self._stop.is_set(),
+                    ok = self._cv.wait_for(lambda last_seq=last_seq: self._controls[1] != last_seq
+                                           or self._stop.is_set(),
                                            self.actuator_timeout)
                     if not ok:
                         break                        # PX4 has gone

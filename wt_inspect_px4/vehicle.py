@@ -260,7 +260,8 @@ class Vehicle:
                         return
                     if result == mavlink.MAV_RESULT_IN_PROGRESS:
                         continue
-                    rname = mavlink.enums["MAV_RESULT"][result].name if result in mavlink.enums["MAV_RESULT"] else result
+                    results = mavlink.enums["MAV_RESULT"]
+                    rname = results[result].name if result in results else result
                     raise VehicleError(f"{name} refused by the vehicle: {rname}")
         raise VehicleError(f"{name}: no COMMAND_ACK within {timeout:g} s")
 

@@ -81,7 +81,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench leak") -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"make/reset/step/close x {out['cycles']} ({args.task} task, {out['seconds_per_cycle']:.2f} s per cycle): "
+        print(f"make/reset/step/close x {out['cycles']} ({args.task} task, "
+              f"{out['seconds_per_cycle']:.2f} s per cycle): "
               f"RSS {out['rss_start_mb']:.1f} MB -> {out['rss_end_mb']:.1f} MB ({out['rss_growth_mb']:+.1f} MB, "
               f"max {out['rss_max_mb']:.1f}); slope {out['slope_kb_per_cycle']:+.1f} kB per cycle")
     return 0

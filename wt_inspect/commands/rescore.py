@@ -93,7 +93,8 @@ def main(argv: list[str], prog: str = "wt-inspect rescore") -> int:
             rows.append({"run_file": f.name, "controller": s.controller, "wind": s.wind, "seed": s.seed,
                          "coverage_flown": float(result.metrics.get("coverage", float("nan"))),
                          "coverage_rescored": score["coverage"], "area_coverage_rescored": score["area_coverage"]})
-            print(f"{f.name}: {s.controller}, wind {s.wind:g}: coverage {100 * rows[-1]['coverage_flown']:.1f} % flown, "
+            print(f"{f.name}: {s.controller}, wind {s.wind:g}: "
+                  f"coverage {100 * rows[-1]['coverage_flown']:.1f} % flown, "
                   f"{100 * score['coverage']:.1f} % re-scored", flush=True)
     except (ValueError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

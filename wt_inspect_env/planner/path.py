@@ -20,7 +20,8 @@ normal ``n`` and stand-off position ``q`` (``q = p + d_ref * offset_direction(n)
 Resampling is done per piece, uniformly in stand-off arc length with at most ``spacing`` between
 samples; both ends of every piece, the via points of transit routes and the blade-edge corner of
 wraps are samples (never cut), so each surface is inspected exactly from end node to end node and
-the resampled path stays on the clearance-checked route. Surface and wrap pieces interpolate ``p`` (points stay on the blade) and derive ``q``;
+the resampled path stays on the clearance-checked route. Surface and wrap pieces interpolate ``p``
+(points stay on the blade) and derive ``q``;
 transit pieces interpolate ``q`` (the route stays clear) and derive ``p``.
 """
 from __future__ import annotations

@@ -310,7 +310,8 @@ class TurbineSpec:
         """Smallest overhang at which a blade pointing straight down misses the tower: the largest
         tower radius at a blade station's height plus that station's half extent along the axis."""
         def tower_r(z: np.ndarray) -> np.ndarray:
-            return self.tower_radius + (self.tower_top_radius - self.tower_radius) * np.clip(z / self.tower_height, 0, 1)
+            return (self.tower_radius
+                    + (self.tower_top_radius - self.tower_radius) * np.clip(z / self.tower_height, 0, 1))
 
         hub = 0.7 * self.blade_width if self.hub_radius is None else self.hub_radius
         if self.blade is None:
@@ -514,7 +515,7 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
         radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
         chord = np.cross(axis, radial)
 
-        def point(U: Any, V: Any, S: Any) -> np.ndarray:
+        def point(U: Any, V: Any, S: Any, radial: np.ndarray = radial, chord: np.ndarray = chord) -> np.ndarray:
             U, V, S = np.broadcast_arrays(np.asarray(U, float), np.asarray(V, float), np.asarray(S, float))
             return (center + (r0 + U)[..., None] * radial + V[..., None] * chord + S[..., None] * axis)
 

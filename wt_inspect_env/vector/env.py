@@ -117,7 +117,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
         self.winds = world.winds
         self.sim, self.mission, self.params, self.scaling = world.sim, world.mission, world.params, world.scaling
-        self.dt, self.camera, self.n_triangles, self.time_limit = world.dt, world.camera, world.n_triangles, world.time_limit
+        self.dt, self.camera = world.dt, world.camera
+        self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.single_observation_space = observation_space()
         self.action_space = batch_space(self.single_action_space, n)

@@ -24,7 +24,8 @@ applies the four forces at the rotor positions instead, and a test checks both a
 
 ``SimConfig(rate_loop=False)`` bypasses the rate loop: the commanded body rates are imposed
 directly on the body at every sub-step (with the gyroscopic torque cancelled so they stay constant
-through it) and the collective thrust acts at the centre of mass. That is exactly the paper's model (:mod:`~wt_inspect_env.physics.dynamics`), which the agreement test relies on.
+through it) and the collective thrust acts at the centre of mass. That is exactly the paper's model
+(:mod:`~wt_inspect_env.physics.dynamics`), which the agreement test relies on.
 """
 from __future__ import annotations
 
@@ -36,14 +37,14 @@ import numpy as np
 import pybullet as p
 
 from ..physics.quadrotor import GRAVITY, QuadrotorParams, get_preset
-from ..scene.pybullet_refs import call_releasing
-from .integration import DroneIntegrator
-from ..planner.proximity import MeshProximity
 from ..physics.rate_control import Mixer, RateGains
-from ..scene.scene_visuals import create_chunks, load_texture, show_chunks
 from ..physics.sim_config import SimConfig
-from ..util.validation import check_array, check_positive
 from ..physics.wind import WindField, make_wind
+from ..planner.proximity import MeshProximity
+from ..scene.pybullet_refs import call_releasing
+from ..scene.scene_visuals import create_chunks, load_texture, show_chunks
+from ..util.validation import check_array, check_positive
+from .integration import DroneIntegrator
 
 
 def _mesh_arrays(mesh: Any) -> tuple[list, list]:
