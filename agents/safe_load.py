@@ -324,6 +324,7 @@ def load_legacy_vecnormalize(path: str | Path, venv: Any) -> Any:
 
 # ------------------------------------------------------------------ VecNormalize as JSON
 def vecnormalize_path(stem: str | Path) -> Path:
+    """The JSON file of the VecNormalize statistics that belongs to the model saved as ``stem``."""
     return Path(str(stem) + VECNORM_SUFFIX)
 
 
@@ -399,6 +400,7 @@ def load_vecnormalize(path: str | Path, venv: Any) -> Any:
 
 # ------------------------------------------------------------------ shipped models' digests
 def sha256_file(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (hex), read in blocks (models can be large)."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):

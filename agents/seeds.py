@@ -227,6 +227,7 @@ def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, r
 
 
 def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> bool:
+    """Whether an evaluation entry's mean metrics reach every value of ``target`` (metric -> minimum)."""
     m = entry["mean"]
     return all(m[k] >= v for k, v in target.items())
 

@@ -14,6 +14,7 @@ from .policy import ALGOS
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect train`` (``prog``: the name shown in its usage)."""
     p = argparse.ArgumentParser(
         prog=prog, description="Train a stable-baselines3 agent on a wind-turbine inspection task. Steps are "
         "simulator control steps (100 Hz); outputs (model, checkpoints, evaluations, TensorBoard logs, "
@@ -64,6 +65,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect train") -> int:
+    """``wt-inspect train``: train (or clone) with the options in ``argv``; returns the exit code."""
     with interrupts_raise():   # SIGTERM = Ctrl-C: a checkpoint is saved either way
         return _main(argv, prog)
 

@@ -139,6 +139,7 @@ def evaluate_policy(policy, task: str, options: Mapping[str, Any], seeds: Sequen
 
 
 def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean metrics and score (mean of min(coverage, SM)) of evaluation episodes, kept beside them."""
     mean = {k: float(np.mean([e[k] for e in episodes])) for k in (*METRIC_KEYS, "episode_return", "steps")}
     score = float(np.mean([min(e["coverage"], e["safety_sm"]) for e in episodes]))
     return {"mean": mean, "score": score, "episodes": episodes}

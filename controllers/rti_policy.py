@@ -135,6 +135,7 @@ def _weight_number(name: str, value: Any) -> float:
 
 
 def check_positive_int(name: str, value: Any) -> int:
+    """``value`` as an int if it is an integer >= 1 (not a bool); else a ValueError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)

@@ -303,6 +303,7 @@ def build_parser(prog: str = "wt-inspect ablation") -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
+    """``wt-inspect ablation``: run (or resume) the ablation chain given by ``argv``; returns the exit code."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:

@@ -86,6 +86,7 @@ def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], pro
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``wt-inspect`` entry point: dispatch ``argv`` (default: the command line) to its subcommand."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in {"-h", "--help"}:
         print(_usage())

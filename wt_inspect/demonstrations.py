@@ -214,6 +214,7 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
 
 
 def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
+    """``wt-inspect demos``: record the dataset given by ``argv``; returns the exit code."""
     import argparse
 
     ap = argparse.ArgumentParser(prog=prog, description="Record expert demonstrations as a Minari dataset.")

@@ -58,6 +58,7 @@ def quat_wxyz_to_matrix(q: Any) -> np.ndarray:
 
 
 def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
+    """Quaternion (w, x, y, z) of rotation matrix ``R``, with w >= 0 (MAVLink's order)."""
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)
 

@@ -44,6 +44,7 @@ def px4_mode(main: int, sub: int = 0) -> int:
 
 
 def px4_main_mode(custom_mode: int) -> int:
+    """PX4's main flight mode from a heartbeat's ``custom_mode`` (its bits 16-23)."""
     return (int(custom_mode) >> 16) & 0xFF
 
 

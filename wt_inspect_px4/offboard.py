@@ -446,6 +446,7 @@ def _json_default(o: Any) -> Any:
 
 # ---------------------------------------------------------------------------------------- CLI
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect fly`` (its epilog: the module's example)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[2:8]))
@@ -485,6 +486,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> FlyConfig:
+    """The flight configuration from parsed arguments (the controller is checked first)."""
     registry.check_controller(args.controller, trust_model=args.trust_model)
     safety = SafetyConfig(box_margin=args.fence_margin, min_clearance=args.min_clearance, max_speed=args.max_speed,
                           min_altitude=args.min_altitude, state_timeout=args.state_timeout,
@@ -497,6 +499,7 @@ def config_from_args(args: argparse.Namespace) -> FlyConfig:
 
 
 def main(argv: list[str], prog: str = "wt-inspect fly") -> int:
+    """``wt-inspect fly``: fly the mission given by ``argv`` through PX4; returns the exit code."""
     args = build_parser(prog).parse_args(argv)
     try:
         from .link import Endpoint

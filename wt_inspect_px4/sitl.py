@@ -334,6 +334,7 @@ def px4_parameters(params: QuadrotorParams, motor_map: Sequence[int] = QUAD_X_MO
 
 
 def main(argv: list[str], prog: str = "wt-inspect sitl") -> int:
+    """``wt-inspect sitl``: be the simulator side of PX4's SITL with the options in ``argv``."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[9:13]))

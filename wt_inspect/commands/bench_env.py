@@ -23,6 +23,7 @@ from .timing_reference import raw_pybullet_rate, rss_mb
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
+    """``wt-inspect bench env``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000, help="steps per repeat (default 20000)")
     ap.add_argument("--repeats", type=int, default=5, help="timed blocks (default 5)")

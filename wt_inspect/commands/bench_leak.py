@@ -64,6 +64,7 @@ def measure_make_close(cycles: int, task: str = "surface", warmup: int = 3,
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench leak") -> int:
+    """``wt-inspect bench leak``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--make-close", type=int, default=300, metavar="N", help="measured cycles (default 300)")
     ap.add_argument("--warmup", type=int, default=3, help="unmeasured cycles first (default 3)")

@@ -127,6 +127,7 @@ def run_bench(preset: str = "matrice100", wind: str = "gust", mean_speed: float 
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench sim") -> int:
+    """``wt-inspect bench sim``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--preset", default="matrice100", choices=sorted(PRESETS))

@@ -217,6 +217,7 @@ def run_benchmark(steps: int = 500, warmup: int = 20,
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -> int:
+    """``wt-inspect bench solver``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")

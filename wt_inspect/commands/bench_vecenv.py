@@ -187,6 +187,7 @@ def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
+    """``wt-inspect bench vecenv``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--num-envs", default="1,8,32,128", help="comma-separated drone counts (default 1,8,32,128)")
     ap.add_argument("--task", default="full", choices=sorted(ENV_IDS))

@@ -902,6 +902,7 @@ def _comparison_figure(names: Sequence[str], rows: Mapping[str, Mapping[int, Map
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect campaign`` (defaults from :class:`CampaignConfig`)."""
     d = CampaignConfig()
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=d.episodes, help=f"(default {d.episodes})")
@@ -934,6 +935,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect campaign") -> int:
+    """``wt-inspect campaign``: run (or resume) the campaign given by ``argv``; returns the exit code."""
     with interrupts_raise():   # SIGTERM = Ctrl-C from the start, whatever --jobs
         return _main(argv, prog)
 

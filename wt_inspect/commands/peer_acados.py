@@ -296,6 +296,8 @@ class Step:
 
 
 def replay(solver, spec, observations):
+    """Step the acados solver through the recorded observations; per step its action, status, time
+    [ms] and QP iterations."""
     step = Step(solver, spec)
     keys = list(observations)
     n = len(observations[keys[0]])
@@ -333,6 +335,7 @@ def probe(solver, spec, xs, us, params, x0):
 
 
 def main(argv):
+    """Answer the JSON request in the file ``argv[1]`` (build, replay or probe) with one JSON object."""
     with open(argv[1]) as f:
         req = json.load(f)
     t0 = time.perf_counter()

@@ -38,6 +38,7 @@ _PLAN_ARGS = {
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect plan`` (defaults from TurbineSpec and PlannerConfig)."""
     d = TurbineSpec()
     c = PlannerConfig()
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
@@ -85,6 +86,7 @@ def _picked(args: argparse.Namespace, table: dict[str, str]) -> dict:
 
 
 def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
+    """``wt-inspect plan``: plan the path given by ``argv``, write its files and print a summary."""
     args = build_parser(prog).parse_args(argv)
     out = Path(args.out)
     try:

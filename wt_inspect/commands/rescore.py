@@ -70,6 +70,7 @@ def _camera(text: str | None) -> dict[str, Any]:
 
 
 def main(argv: list[str], prog: str = "wt-inspect rescore") -> int:
+    """``wt-inspect rescore``: re-score the recorded runs named in ``argv``; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="run files (.npz) or directories holding them (DIR or DIR/runs)")
     ap.add_argument("--camera", default=None, help="JSON object of CameraConfig fields to change, e.g. "

@@ -340,6 +340,7 @@ def _figure(cfg: TuneConfig, trials: Sequence[Any], path: Path) -> None:
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect tune`` (its epilog states the objective)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="objective: " + OBJECTIVE)
@@ -362,6 +363,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect tune") -> int:
+    """``wt-inspect tune``: run (or resume) the study given by ``argv``; returns the exit code."""
     args = build_parser(prog).parse_args(argv)
     try:
         cfg = TuneConfig(controller=args.controller, scenario=args.scenario, trials=args.trials, out=args.out,

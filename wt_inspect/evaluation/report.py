@@ -57,6 +57,7 @@ def _fmt_csv(v: Any) -> str:
 
 
 def csv_text(results: Iterable[RunResult]) -> str:
+    """The runs as results.csv text (columns :data:`CSV_COLUMNS`, one row per run)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
@@ -227,6 +228,7 @@ def _frames_note(results: Sequence[RunResult]) -> str:
 
 
 def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
+    """results.md of an evaluation: the metrics of every run, then how the numbers were made."""
     sc = get_scenario(ctx.scenario)
     rows = [r.row() for r in results]
     lines = [f"# Evaluation: scenario `{sc.name}`", "",
@@ -349,5 +351,6 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
 
 
 def write_markdown(results: Sequence[RunResult], ctx: ReportContext, path: str | Path) -> Path:
+    """Write :func:`markdown` to ``path`` atomically and return the path."""
     write_text_atomic(path, markdown(results, ctx))
     return Path(path)

@@ -305,6 +305,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def markdown(s: Mapping[str, Any], starts: int, command: str) -> str:
+    """results.md of the study from its summary ``s`` (``starts`` seeded starts, the command)."""
     from wt_inspect.evaluation.report import hardware
     lines = ["# The safety filter against adversarial policies", "",
              f"`{command}`", "",
@@ -327,6 +328,7 @@ def markdown(s: Mapping[str, Any], starts: int, command: str) -> str:
 
 
 def build_parser(prog: str = "wt-inspect study safety-filter") -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect study safety-filter``."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=1000, help="seeded recoverable starts (default 1000)")
     ap.add_argument("--out", default="results/safety_filter", help="output folder")
@@ -336,6 +338,7 @@ def build_parser(prog: str = "wt-inspect study safety-filter") -> argparse.Argum
 
 
 def main(argv: list[str], prog: str = "wt-inspect study safety-filter") -> int:
+    """``wt-inspect study safety-filter``: run the study given by ``argv``; returns the exit code."""
     ap = build_parser(prog)
     args = ap.parse_args(argv)
     if args.starts < 1:

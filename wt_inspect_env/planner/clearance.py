@@ -106,6 +106,7 @@ def sample_polyline(poly: np.ndarray, step: float) -> np.ndarray:
 
 
 def polyline_length(poly: np.ndarray) -> float:
+    """Length [m] of the polyline through the rows of ``poly``."""
     return float(np.linalg.norm(np.diff(poly, axis=0), axis=1).sum())
 
 

@@ -151,6 +151,8 @@ def transit_piece(route: np.ndarray, n0: np.ndarray, n1: np.ndarray, phase: int,
 
 @dataclass
 class SampledPath:
+    """The planned path resampled for flight: per sample the blade point, its normal, the stand-off
+    point, the surface, the phase and the kind of piece."""
     points: np.ndarray
     normals: np.ndarray
     standoff_points: np.ndarray

@@ -155,6 +155,8 @@ def section_contour(tc: float, n_half: int) -> np.ndarray:
 
 
 def pitch_axis_at(shape: BladeShape, tc: float) -> float:
+    """Pitch-axis chord fraction of a section of relative thickness ``tc``: 0.5 for the circle, blended
+    to the shape's ``pitch_axis`` for the aerofoil."""
     return 0.5 * _blend(tc) + shape.pitch_axis * (1.0 - _blend(tc))
 
 

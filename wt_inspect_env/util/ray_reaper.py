@@ -169,6 +169,7 @@ class Reaper:
 
 
 def main(argv: list[str]) -> int:
+    """Run the reaper process (arguments in ``argv``); it ignores Ctrl-C and SIGTERM so that it can clean up."""
     # the driver handles Ctrl-C / SIGTERM and shuts Ray down; the reaper must outlive it to clean up
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)

@@ -45,6 +45,7 @@ _MAX_GEOMETRIES = 8
 
 
 def geometry_group(g: int) -> int:
+    """PyBullet collision group bit of geometry ``g`` (each geometry its own, above the ground's)."""
     return _GEOMETRY_GROUP0 << g
 
 
