@@ -93,6 +93,7 @@ class Piece:
 
     @property
     def standoff_length(self) -> float:
+        """Length [m] of the piece's stand-off path ``q``."""
         return float(np.linalg.norm(np.diff(self.q, axis=0), axis=1).sum())
 
 

@@ -35,7 +35,8 @@ class WorldView(Protocol):
     volume_hi: np.ndarray
 
     @property
-    def coverage(self) -> np.ndarray: ...
+    def coverage(self) -> np.ndarray:
+        """Each drone's coverage of its running episode."""
 
 TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 

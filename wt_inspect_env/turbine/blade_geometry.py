@@ -90,18 +90,22 @@ class BladeShape:
 
     @property
     def root(self) -> float:
+        """Span position [m] of the first station (the blade root)."""
         return self.span[0]
 
     @property
     def tip(self) -> float:
+        """Span position [m] of the last station (the tip)."""
         return self.span[-1]
 
     @property
     def length(self) -> float:
+        """Blade length [m] from root to tip station."""
         return self.span[-1] - self.span[0]
 
     @property
     def max_chord(self) -> float:
+        """Largest chord [m] over the stations."""
         return max(self.chord)
 
     @property

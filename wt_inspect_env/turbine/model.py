@@ -354,6 +354,7 @@ class TurbineSpec:
 
     @property
     def rotor_center(self) -> np.ndarray:
+        """The rotor centre [m]: the tower top, moved along the facing by the overhang."""
         return np.array([self.position[0], self.position[1], self.tower_height]) + self.overhang * self.facing
 
     @property
@@ -378,6 +379,7 @@ class TurbineSpec:
 
     @property
     def n_cap_triangles(self) -> int:
+        """Number of triangles of the blades' root and tip caps."""
         if self.blade is not None:
             return N_BLADES * 2 * self._shape_grid()[1]
         nu, nv, nt = self.grid
@@ -438,6 +440,7 @@ class TurbineMesh:
 
     @property
     def n_blade_triangles(self) -> int:
+        """Number of blade triangles (those coverage counts)."""
         return len(self.blade_vertices)
 
     @property
@@ -695,6 +698,7 @@ class MeshLoadOptions:
 
     @property
     def scale(self) -> float:
+        """Metres per file unit."""
         return UNITS[self.unit] if isinstance(self.unit, str) else float(self.unit)
 
     def up_rotation(self, fmt: str) -> np.ndarray:
@@ -724,6 +728,7 @@ class MeshPart:
     extent: tuple[float, float, float]   # sizes along the principal axes, long first
 
     def describe(self) -> str:
+        """One line about the part (faces, extent, tilt, height range) for logs and errors."""
         e = self.extent
         tilt = math.degrees(math.acos(min(1.0, abs(float(self.direction[2])))))
         return (f"{len(self.faces)} faces {e[0]:.3g} x {e[1]:.3g} x {e[2]:.3g} m, long axis {tilt:.0f} deg "

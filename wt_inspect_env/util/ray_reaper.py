@@ -145,6 +145,7 @@ class Reaper:
         self._before: set[int] = set()
 
     def start(self) -> None:
+        """Start the reaper process, telling it which of this process's children existed before Ray."""
         if not supported():
             return
         me = os.getpid()

@@ -129,6 +129,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def hooks(self) -> TaskHooks:
+        """The task's observation, reward and termination rules (shared with the world)."""
         return self.world.hooks
 
     @property
@@ -138,6 +139,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def steps(self) -> np.ndarray:
+        """Control steps of each drone's running episode."""
         return self.world.steps
 
     # ------------------------------------------------------------------ gym API
@@ -175,6 +177,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         return w.observations(np.zeros(n, dtype=bool)), self._infos(None)
 
     def step(self, actions):
+        """Hold each drone's action for one control step; drones whose episode ended are reset (autoreset)."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
         w, n = self.world, self.num_envs
@@ -203,6 +206,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         return obs, r.reward, r.terminated, r.truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
+        """Close the world's simulator."""
         self.world.close()
 
     # ------------------------------------------------------------------ queries
@@ -212,6 +216,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def coverage(self) -> np.ndarray:
+        """Each drone's coverage of its running episode."""
         return self.world.coverage
 
     # ------------------------------------------------------------------ internals

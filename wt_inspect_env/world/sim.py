@@ -249,6 +249,7 @@ class QuadrotorSim:
 
     @property
     def body_id(self) -> int:
+        """PyBullet body id of the drone."""
         return self._body
 
     def _check_open(self) -> None:
@@ -376,6 +377,7 @@ class QuadrotorSim:
 
     @property
     def ground_id(self) -> int:
+        """PyBullet body id of the ground plane."""
         return self._ground
 
     # ------------------------------------------------------------------ plant
@@ -386,6 +388,7 @@ class QuadrotorSim:
 
     @property
     def thrust_scale(self) -> float:
+        """The thrust factor of the plant in use (:meth:`set_plant`)."""
         return self._thrust_scale
 
     def set_plant(self, plant: QuadrotorParams | None = None, thrust_scale: float = 1.0) -> None:
@@ -474,6 +477,7 @@ class QuadrotorSim:
 
     @property
     def world_velocity(self) -> np.ndarray:
+        """The drone's velocity in the world frame [m/s] (a copy)."""
         return self._integrator.core.vel[0].copy()
 
     @property
