@@ -113,6 +113,7 @@ class DAggerConfig:
 
     @classmethod
     def from_mapping(cls, data: Any, **defaults: Any) -> "DAggerConfig":
+        """The config from its JSON object over ``defaults`` (unknown keys are an error)."""
         if not isinstance(data, Mapping):
             raise ValueError(f"dagger options must be a JSON object, got {data!r}")
         check_unknown_options("dagger", data.keys(), [f.name for f in dataclasses.fields(cls)])
@@ -123,6 +124,7 @@ class DAggerConfig:
         return float(self.beta0) * float(self.beta_decay) ** (round_ - 1)
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as plain JSON-able data (for the run's summary)."""
         return dataclasses.asdict(self)
 
 
@@ -149,6 +151,7 @@ class ShadowExpert:
         self._note = getattr(policy, "note_applied_action", None)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the expert for a new episode."""
         self.policy.reset(seed)
 
     def label(self, obs: Mapping[str, Any]) -> np.ndarray:

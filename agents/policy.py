@@ -140,11 +140,13 @@ class SB3Policy(Policy):
         self.last_stats = None
 
     def normalize(self, features: np.ndarray) -> np.ndarray:
+        """The features as the network takes them: normalised if the agent was trained with normalisation."""
         if self.normalization is None:
             return features.astype(np.float32)
         return self.normalization(features)
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The env action for ``obs``: the network is asked every ``action_repeat`` steps, its action held between."""
         o = check_observation(obs)
         self.encoder.update(o)
         if self._count % self.spec.action_repeat == 0 or self._held is None:

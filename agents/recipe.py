@@ -149,12 +149,15 @@ class Recipe:
 
     @property
     def spec(self) -> AgentSpec:
+        """The agent spec the recipe trains (its ``agent`` field)."""
         return self.agent
 
     def eval_env_options(self) -> dict:
+        """The env options of the periodic evaluation: ``env`` with ``eval_env`` over it."""
         return {**dict(self.env), **dict(self.eval_env)}
 
     def to_dict(self) -> dict[str, Any]:
+        """The recipe as plain JSON data (for the model's sidecar and the run's files)."""
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         d["agent"] = self.agent.to_dict()
         d["shaping"] = dataclasses.asdict(self.shaping)
@@ -162,6 +165,7 @@ class Recipe:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "Recipe":
+        """The recipe from its JSON object (unknown keys are an error)."""
         if not isinstance(data, Mapping):
             raise ValueError(f"a recipe must be a JSON object, got {type(data).__name__}")
         check_unknown_options("recipe", data.keys(), [f.name for f in dataclasses.fields(cls)])

@@ -94,6 +94,7 @@ class PAMPCWeights(LSQWeights):
 
     @classmethod
     def authors(cls) -> "PAMPCWeights":
+        """The authors' weights (the defaults)."""
         return cls()
 
 
@@ -178,6 +179,7 @@ class PAMPCPolicy(TrackingMPCPolicy):
     config_class = PAMPCConfig
 
     def build_ocp(self, config: PAMPCConfig) -> OCP:
+        """The PAMPC's OCP."""
         return build_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,

@@ -325,9 +325,11 @@ class LSQWeights:
         return np.concatenate(parts)
 
     def stage_vector(self) -> np.ndarray:
+        """The stage residual's weights as a vector."""
         return self._vector(self.STAGE)
 
     def terminal_vector(self) -> np.ndarray:
+        """The terminal residual's weights as a vector, times ``terminal_factor``."""
         return self.terminal_factor * self._vector(self.TERMINAL)
 
 
@@ -815,6 +817,7 @@ class RTIPolicy(Policy):
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Normalised env action in [-1, 1]^4 for one observation."""
         return self.action_of(self.command(obs))
 
     def action_of(self, c: np.ndarray) -> np.ndarray:

@@ -98,6 +98,7 @@ class VTNMPCWeights(LSQWeights):
 
     @classmethod
     def paper(cls) -> "VTNMPCWeights":
+        """The paper's weights (the defaults)."""
         return cls()
 
     @classmethod
@@ -261,9 +262,11 @@ class VTNMPCPolicy(RTIPolicy):
         self._a_hat = np.zeros(3)
 
     def build_ocp(self, config: VTNMPCConfig) -> OCP:
+        """The VT-NMPC's OCP."""
         return build_ocp(config)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the solver and the disturbance estimate for a new episode."""
         super().reset(seed)
         self._a_hat = np.zeros(3)
 
