@@ -111,10 +111,12 @@ class TuneConfig:
 
     @property
     def storage_url(self) -> str:
+        """The Optuna storage: ``storage`` if given, else ``OUT/study.db``."""
         return self.storage or f"sqlite:///{Path(self.out).resolve() / 'study.db'}"
 
     @property
     def study_name(self) -> str:
+        """The Optuna study name: ``study`` if given, else controller-scenario."""
         return self.study or f"{self.controller}-{self.scenario}"
 
 
@@ -188,6 +190,7 @@ class Objective:
         self.trial_dir = Path(cfg.out) / "trials" / safe   # trial numbers are per study
 
     def __call__(self, trial: optuna.Trial) -> float:
+        """Fly the trial's weights (the blocks' multipliers drawn by Optuna); returns the mean score."""
         cfg = self.cfg
         lo, hi = 1.0 / cfg.spread, cfg.spread
         mult = {k: trial.suggest_float(k, lo, hi, log=True) for k in self.blocks}

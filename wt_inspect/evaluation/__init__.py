@@ -121,6 +121,7 @@ class Evaluation:
     files: dict[str, Any] = field(default_factory=dict)
 
     def rows(self) -> list[dict[str, Any]]:
+        """One results row per run."""
         return [r.row() for r in self.results]
 
 

@@ -72,9 +72,11 @@ class FlyAt:
         self.target, self.gain, self.damping, self.a_max = target, gain, damping, a_max
 
     def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: the policy has no state."""
         pass
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The normalised action that accelerates the drone at the target."""
         from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
         u = self.u
         p, q = np.asarray(obs["position"], float), np.asarray(obs["quaternion"], float)
@@ -102,9 +104,11 @@ class RandomActions:
         self.rng = np.random.default_rng(0)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reseed the random actions."""
         self.rng = np.random.default_rng(seed)
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Uniformly random normalised actions."""
         return self.rng.uniform(-1.0, 1.0, 4).astype(np.float32)
 
 
