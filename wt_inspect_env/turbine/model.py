@@ -518,7 +518,7 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
         radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
         chord = np.cross(axis, radial)
 
-        def point(U: Any, V: Any, S: Any, radial: np.ndarray = radial, chord: np.ndarray = chord) -> np.ndarray:
+        def point(U: Any, V: Any, S: Any, *, radial: np.ndarray = radial, chord: np.ndarray = chord) -> np.ndarray:
             U, V, S = np.broadcast_arrays(np.asarray(U, float), np.asarray(V, float), np.asarray(S, float))
             return (center + (r0 + U)[..., None] * radial + V[..., None] * chord + S[..., None] * axis)
 
