@@ -36,7 +36,7 @@ class WorldView(Protocol):
 
     @property
     def coverage(self) -> np.ndarray:
-        """Each drone's coverage of its running episode."""
+        """(N,) share of the mission's inspected triangles each drone has seen this episode."""
 
 TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 
