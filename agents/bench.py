@@ -98,6 +98,7 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench train") -> int:
+    """``wt-inspect bench train``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--algo", default="ppo", help=f"algorithm: {', '.join(ALGOS)}")
     ap.add_argument("--task", default="surface", help=f"task: {', '.join(TASKS)}")

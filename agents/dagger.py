@@ -113,6 +113,7 @@ class DAggerConfig:
 
     @classmethod
     def from_mapping(cls, data: Any, **defaults: Any) -> "DAggerConfig":
+        """The config from its JSON object over ``defaults`` (unknown keys are an error)."""
         if not isinstance(data, Mapping):
             raise ValueError(f"dagger options must be a JSON object, got {data!r}")
         check_unknown_options("dagger", data.keys(), [f.name for f in dataclasses.fields(cls)])
@@ -123,6 +124,7 @@ class DAggerConfig:
         return float(self.beta0) * float(self.beta_decay) ** (round_ - 1)
 
     def to_dict(self) -> dict[str, Any]:
+        """The config as plain JSON-able data (for the run's summary)."""
         return dataclasses.asdict(self)
 
 
@@ -149,6 +151,7 @@ class ShadowExpert:
         self._note = getattr(policy, "note_applied_action", None)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the expert for a new episode."""
         self.policy.reset(seed)
 
     def label(self, obs: Mapping[str, Any]) -> np.ndarray:
@@ -356,7 +359,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
             ep0 = result["episodes"][0]
             print(f"[dagger] round {round_} beta={beta:.3f} env_steps={env_steps} wall={wall():.0f}s "
                   f"coverage={mm['coverage']:.3f} SM={mm['safety_sm']:.3f} CM={mm['centering_cm']:.3f} "
-                  f"flight={mm['flight_time_s']:.1f}s ({ep0['termination'] or 'complete'})", file=sys.stderr, flush=True)
+                  f"flight={mm['flight_time_s']:.1f}s ({ep0['termination'] or 'complete'})",
+                  file=sys.stderr, flush=True)
             return entry
 
         def finish_round(round_: int, entry: Mapping[str, Any]) -> None:
@@ -496,7 +500,8 @@ def cli(args, prog: str) -> int:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     for row in summary["per_round"]:
-        print(f"round {row['round']} (beta {row['beta']:.3f}): coverage {row['coverage']:.3f}, SM {row['safety_sm']:.3f}, "
+        print(f"round {row['round']} (beta {row['beta']:.3f}): coverage {row['coverage']:.3f}, "
+              f"SM {row['safety_sm']:.3f}, "
               f"CM {row['centering_cm']:.3f}, flight {row['flight_time_s']:.1f} s ({row['termination'] or 'complete'})")
     print(json.dumps({"model": summary["final_model"], "summary": str(args.out) + "/summary.json"}))
     return 0

@@ -9,7 +9,8 @@ turns each expert action back into the agent's residual-hover action (the invers
 :class:`~agents.wrappers.ResidualHoverAction` in ``rates`` mode), and fits the mean of the
 recipe's SB3 policy to it by mean-squared error, each action component weighted by the
 inverse of its variance (Adam with a cosine learning-rate decay, mini-batches, a held-out
-validation share; the loss reported is that weighted MSE, 1 = no better than the mean action). The result is saved like a trained model (``model.zip`` + sidecar + normalisation), so it
+validation share; the loss reported is that weighted MSE, 1 = no better than the mean action).
+The result is saved like a trained model (``model.zip`` + sidecar + normalisation), so it
 is evaluated with ``--controllers ppo:PATH`` and fine-tuned with ``wt-inspect train --resume``.
 
 Why not the ``imitation`` library: its last release (1.0.1) pins ``gymnasium~=0.29`` and

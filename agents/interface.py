@@ -52,6 +52,7 @@ class BatchedFeatures:
         self._R = np.tile(np.eye(3), (n, 1, 1))
 
     def reset(self, idx: Any) -> None:
+        """Clear the integral, last action and heading memory of drones ``idx`` (a new episode)."""
         self.integral[idx] = 0.0
         self.last_action[idx] = 0.0
         self.hdir[idx] = [1.0, 0.0, 0.0]

@@ -15,7 +15,8 @@ trusts the file (``trust_model``).
 observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> network
 (deterministic) -> :class:`~agents.wrappers.ResidualHoverAction` -> the env's normalised action;
 the network's action is held for ``action_repeat`` control steps and decoded at each of them with
-the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation harness resolves ``ppo:PATH`` /
+the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation
+harness resolves ``ppo:PATH`` /
 ``sac:PATH`` controller names through it. :func:`agent_env` is the same pipeline as an env wrapper,
 for code that drives the bare SB3 model itself (``model.predict(obs)`` on the wrapped env).
 """
@@ -139,11 +140,13 @@ class SB3Policy(Policy):
         self.last_stats = None
 
     def normalize(self, features: np.ndarray) -> np.ndarray:
+        """The features as the network takes them: normalised if the agent was trained with normalisation."""
         if self.normalization is None:
             return features.astype(np.float32)
         return self.normalization(features)
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The env action for ``obs``: the network is asked every ``action_repeat`` steps, its action held between."""
         o = check_observation(obs)
         self.encoder.update(o)
         if self._count % self.spec.action_repeat == 0 or self._held is None:

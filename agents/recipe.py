@@ -62,7 +62,8 @@ class Recipe:
     env: ``gym.make`` options for the training envs (``task`` comes from the command line).
     eval_env: options overriding ``env`` for the periodic evaluation (e.g. no start noise, the full
         mission length). env_variants: option dicts merged over ``env``, one drawn per training
-        episode (weights ``env_variant_weights``, default equal) - e.g. several wind speeds. agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
+        episode (weights ``env_variant_weights``, default equal) - e.g. several wind speeds.
+        agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
         (:class:`~agents.wrappers.ShapingConfig`). normalize: VecNormalize switches.
     algo_kwargs: keyword arguments of the stable-baselines3 algorithm; ``learning_rate_final``
         (optional) makes the learning rate decay linearly to it. policy_kwargs: ``net_arch``,
@@ -102,7 +103,8 @@ class Recipe:
             if "task" in opts:
                 raise ValueError(f"recipe {name} must not set 'task' (it comes from --task)")
             _check_env_options({**dict(self.env), **opts})
-        if not isinstance(self.env_variants, (list, tuple)) or not all(isinstance(v, Mapping) for v in self.env_variants):
+        if (not isinstance(self.env_variants, (list, tuple))
+                or not all(isinstance(v, Mapping) for v in self.env_variants)):
             raise ValueError(f"recipe env_variants must be a list of dicts, got {self.env_variants!r}")
         for i, v in enumerate(self.env_variants):
             if "task" in v:
@@ -147,12 +149,15 @@ class Recipe:
 
     @property
     def spec(self) -> AgentSpec:
+        """The agent spec the recipe trains (its ``agent`` field)."""
         return self.agent
 
     def eval_env_options(self) -> dict:
+        """The env options of the periodic evaluation: ``env`` with ``eval_env`` over it."""
         return {**dict(self.env), **dict(self.eval_env)}
 
     def to_dict(self) -> dict[str, Any]:
+        """The recipe as plain JSON data (for the model's sidecar and the run's files)."""
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         d["agent"] = self.agent.to_dict()
         d["shaping"] = dataclasses.asdict(self.shaping)
@@ -160,6 +165,7 @@ class Recipe:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "Recipe":
+        """The recipe from its JSON object (unknown keys are an error)."""
         if not isinstance(data, Mapping):
             raise ValueError(f"a recipe must be a JSON object, got {type(data).__name__}")
         check_unknown_options("recipe", data.keys(), [f.name for f in dataclasses.fields(cls)])

@@ -71,7 +71,8 @@ def _loader(algo: str):
     return load
 
 
-ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)", display_name="PPO",
+ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)",
+                  display_name="PPO",
                   takes_argument=True, check=_check("ppo"), fingerprint=model_fingerprint, trust_option=True)
 sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip or sac:NAME)", display_name="SAC",
                   takes_argument=True, check=_check("sac"), fingerprint=model_fingerprint, trust_option=True)

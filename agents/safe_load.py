@@ -211,7 +211,8 @@ def rebuild_custom_objects(cls: type, zip_path: str | Path, doc: Mapping[str, An
     data = read_data(zip_path)
     builders = _rebuilders(cls, doc, data)
     out: dict[str, Any] = {}
-    entries = {k: {kk: vv for kk, vv in v.items() if kk != ":serialized:"} for k, v in data.items() if _is_serialized(v)}
+    entries = {k: {kk: vv for kk, vv in v.items() if kk != ":serialized:"}
+               for k, v in data.items() if _is_serialized(v)}
     for name, described in entries.items():
         if name not in builders:
             raise UnsafeModelError(f"model file {p!r}: entry {name!r} of its data would need unpickling "
@@ -323,6 +324,7 @@ def load_legacy_vecnormalize(path: str | Path, venv: Any) -> Any:
 
 # ------------------------------------------------------------------ VecNormalize as JSON
 def vecnormalize_path(stem: str | Path) -> Path:
+    """The JSON file of the VecNormalize statistics that belongs to the model saved as ``stem``."""
     return Path(str(stem) + VECNORM_SUFFIX)
 
 
@@ -398,6 +400,7 @@ def load_vecnormalize(path: str | Path, venv: Any) -> Any:
 
 # ------------------------------------------------------------------ shipped models' digests
 def sha256_file(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (hex), read in blocks (models can be large)."""
     h = hashlib.sha256()
     with open(path, "rb") as fh:
         for block in iter(lambda: fh.read(1 << 20), b""):
@@ -468,6 +471,7 @@ def write_manifest(models_dir: Path | None = None) -> Path:
     return path
 
 
-__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "check_model_data", "load_legacy_vecnormalize", "rebuild_custom_objects", "serialized_entries", "read_data",
+__all__ = ["UnsafeModelError", "load_sb3_model", "check_safe", "check_model_data", "load_legacy_vecnormalize",
+           "rebuild_custom_objects", "serialized_entries", "read_data",
            "check_weights_only", "save_vecnormalize", "load_vecnormalize", "vecnormalize_path", "verify_shipped",
            "write_manifest", "sha256_file", "sb3_policy_kwargs", "sb3_algo_kwargs", "MODELS_DIR", "TRUST_HINT"]

@@ -133,7 +133,8 @@ def check_seed_bases(resume: str | Path | None, seeds: Sequence[int]) -> None:
             raise ValueError(f"--resume: no model {base!r} for seed {s}")
 
 
-def _unfinished(seeds: Sequence[int], out: Path, kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
+def _unfinished(seeds: Sequence[int], out: Path,
+                kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
     return [({**kwargs, "resume": seed_base(kwargs.get("resume"), s)}, s, out / f"seed_{s}")
             for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
 
@@ -226,6 +227,7 @@ def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, r
 
 
 def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> bool:
+    """Whether an evaluation entry's mean metrics reach every value of ``target`` (metric -> minimum)."""
     m = entry["mean"]
     return all(m[k] >= v for k, v in target.items())
 

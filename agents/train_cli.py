@@ -14,6 +14,7 @@ from .policy import ALGOS
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect train`` (``prog``: the name shown in its usage)."""
     p = argparse.ArgumentParser(
         prog=prog, description="Train a stable-baselines3 agent on a wind-turbine inspection task. Steps are "
         "simulator control steps (100 Hz); outputs (model, checkpoints, evaluations, TensorBoard logs, "
@@ -28,16 +29,19 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--bc-epochs", type=int, default=30, help="bc: passes over the dataset (default 30)")
     p.add_argument("--task", default=None, help=f"task: {', '.join(TASKS)} (default surface; full for bc)")
     p.add_argument("--timesteps", type=int, default=None, help="simulator steps to train in this run (RL)")
-    p.add_argument("--n-envs", type=int, default=16, help="parallel environments (drones of the vector env; default 16)")
+    p.add_argument("--n-envs", type=int, default=16,
+                   help="parallel environments (drones of the vector env; default 16)")
     p.add_argument("--backend", default="vector", choices=["vector", "subprocess", "dummy"],
                    help="vector: all drones in one batched env in this process (default); subprocess: one env per "
                         "process (SB3 SubprocVecEnv); dummy: single envs in turn in this process")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--recipe", default=None,
                    help="recipe JSON (default agents/recipes/<algo>_surface.json, or the checkpoint's when resuming); "
-                        "with --seeds, several comma-separated: one run per recipe and seed into OUT/<recipe>/seed_<s>/")
+                        "with --seeds, several comma-separated: one run per recipe and seed into "
+                        "OUT/<recipe>/seed_<s>/")
     p.add_argument("--resume", default=None, help="checkpoint .zip of an earlier run to continue from; with --seeds, "
-                   "'{seed}' in the path is replaced by each seed (OUT_BLADE/seed_{seed}/model.zip: every seed fine-tunes "
+                   "'{seed}' in the path is replaced by each seed (OUT_BLADE/seed_{seed}/model.zip: "
+                   "every seed fine-tunes "
                    "its own model of the curriculum's stage before)")
     p.add_argument("--trust-model", action="store_true",
                    help="WARNING: with --resume (or --seeds resuming unfinished seeds), also load a checkpoint "
@@ -54,12 +58,14 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     p.add_argument("--max-minutes", type=float, default=None, help="stop (and save) after this wall time")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
-                   help=f"format of the learning-curve figures (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
+                   help=f"format of the learning-curve figures (default {DEFAULT_FIGURE_FORMAT}; "
+                        "pdf and svg are vector)")
     p.add_argument("--verbose", type=int, default=0, help="stable-baselines3 verbosity (0, 1, 2)")
     return p
 
 
 def main(argv: list[str], prog: str = "wt-inspect train") -> int:
+    """``wt-inspect train``: train (or clone) with the options in ``argv``; returns the exit code."""
     with interrupts_raise():   # SIGTERM = Ctrl-C: a checkpoint is saved either way
         return _main(argv, prog)
 
@@ -159,8 +165,10 @@ def _seeds(args, prog: str) -> int:
         return 2
     for r in doc["seeds"]:
         f = r["final"] or {}
-        when = f"at {r['reached_at_env_steps']} steps ({r['reached_at_wall_s']:.0f} s)" if r["reached_target"] else "not reached"
-        print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, SM {f.get('safety_sm', float('nan')):.3f}, "
+        when = (f"at {r['reached_at_env_steps']} steps ({r['reached_at_wall_s']:.0f} s)" if r["reached_target"]
+                else "not reached")
+        print(f"seed {r['seed']}: coverage {f.get('coverage', float('nan')):.3f}, "
+              f"SM {f.get('safety_sm', float('nan')):.3f}, "
               f"CM {f.get('centering_cm', float('nan')):.3f}; target {when}")
     for name, t in doc["targets"].items():
         print(f"{t['n_reached']} of {len(doc['seeds'])} seeds reached the {name} target {t['target']}")

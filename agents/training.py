@@ -139,6 +139,7 @@ def evaluate_policy(policy, task: str, options: Mapping[str, Any], seeds: Sequen
 
 
 def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Mean metrics and score (mean of min(coverage, SM)) of evaluation episodes, kept beside them."""
     mean = {k: float(np.mean([e[k] for e in episodes])) for k in (*METRIC_KEYS, "episode_return", "steps")}
     score = float(np.mean([min(e["coverage"], e["safety_sm"]) for e in episodes]))
     return {"mean": mean, "score": score, "episodes": episodes}
@@ -234,17 +235,21 @@ class TrainingRun:
         self._episodes_path = out / "episodes.csv"
 
     def elapsed(self) -> float:
+        """Seconds of wall time since this run started (this invocation only)."""
         return time.perf_counter() - self.t0
 
     def wall_time(self) -> float:
+        """Seconds of wall time of the whole training, earlier runs it resumes included."""
         return self.wall_before + self.elapsed()
 
     def interface_env(self) -> gym.Env:
+        """The single raw env the periodic evaluation flies (made on first use, then kept)."""
         if self._eval_env is None:
             self._eval_env = make_raw_env(self.task, self.recipe.eval_env_options())
         return self._eval_env
 
     def record_episode(self, info: Mapping[str, Any], logger) -> None:
+        """Log one finished training episode's return and metrics (to ``logger`` and the run's record)."""
         m = info["metrics"]
         row = {"env_steps": self.env_steps, "wall_time_s": round(self.wall_time(), 2),
                "return": float(info["episode"]["r"]) if "episode" in info else float("nan"),
@@ -264,6 +269,7 @@ class TrainingRun:
         logger.record("time/env_steps", self.env_steps)
 
     def evaluate(self, model, logger=None) -> dict[str, Any]:
+        """Evaluate ``model`` deterministically on the evaluation seeds; returns the summary (logged if ``logger``)."""
         t = time.perf_counter()
         env = self.interface_env()
         policy = _policy_from_model(model, self.spec, self.vecnormalize, env)
@@ -289,11 +295,13 @@ class TrainingRun:
         return entry
 
     def training_info(self) -> dict[str, Any]:
+        """What a saved model records about the training that made it (algorithm, task, steps, wall time)."""
         return {"algo": self.algo, "task": self.task, "env_steps": self.env_steps,
                 "wall_time_s": round(self.wall_time(), 1), "n_envs": self.n_envs, "seed": self.seed,
                 "backend": self.backend}
 
     def save(self, model, path: Path, evaluation: Mapping[str, Any] | None = None) -> Path:
+        """Save ``model`` with its sidecar (spec, normalisation, interface, training info) at ``path``."""
         extra = {"training": self.training_info(), "recipe": self.recipe.to_dict()}
         if evaluation is not None:
             extra["evaluation"] = evaluation
@@ -301,9 +309,11 @@ class TrainingRun:
                           interface=env_interface(self.interface_env()), extra=extra)
 
     def checkpoint(self, model) -> Path:
+        """Save a checkpoint named by the current number of env steps under ``OUT/checkpoints``."""
         return self.save(model, self.out / "checkpoints" / f"ckpt_{self.env_steps}")
 
     def close(self) -> None:
+        """Close the evaluation env, if one was made."""
         if self._eval_env is not None:
             self._eval_env.close()
             self._eval_env = None

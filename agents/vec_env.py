@@ -38,12 +38,15 @@ class BatchedAgentInterface:
 
     @property
     def err(self) -> np.ndarray:
+        """Each drone's position error to its ideal pose [m], (n, 3), as of its last update."""
         return self.encoder.err
 
     def reset(self, idx: np.ndarray) -> None:
+        """Forget the previous episode of drones ``idx``."""
         self.encoder.reset(idx)
 
     def note_action(self, u: np.ndarray) -> None:
+        """Remember the policy actions now being applied (the ``last_action`` feature)."""
         self.encoder.note_action(u)
 
     def update(self, idx: np.ndarray, obs: Mapping[str, np.ndarray]) -> None:
@@ -52,9 +55,11 @@ class BatchedAgentInterface:
             self.encoder.update(idx, obs)
 
     def heading_cos(self, i: int) -> float:
+        """Cosine of drone ``i``'s camera heading error at its last update."""
         return self.encoder.heading_cos(i)
 
     def features(self) -> np.ndarray:
+        """The agent's features of every drone, (n, size)."""
         return self.encoder.features()
 
     def decode(self, u: np.ndarray, quaternion: np.ndarray) -> np.ndarray:

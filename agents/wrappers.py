@@ -121,6 +121,7 @@ class FeatureConfig:
 
     @property
     def size(self) -> int:
+        """Number of feature entries (the length of the agent's observation)."""
         return sum(FEATURE_SIZES[g] for g in self.groups)
 
     def names(self) -> list[str]:
@@ -181,12 +182,14 @@ class AgentSpec:
             raise ValueError(f"action_repeat must be a positive integer, got {r!r}")
 
     def to_dict(self) -> dict[str, Any]:
+        """The spec as plain JSON-able data (for the model's sidecar)."""
         d = dataclasses.asdict(self)
         d["features"]["groups"] = list(self.features.groups)
         return d
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "AgentSpec":
+        """The spec from :meth:`to_dict` data (unknown keys are an error)."""
         check_unknown_options("agent spec", data.keys(), [f.name for f in dataclasses.fields(cls)])
         return cls(**dict(data))
 
@@ -249,6 +252,7 @@ class FeatureEncoder:
         self.reset()
 
     def reset(self) -> None:
+        """Forget the previous episode (call at every env reset)."""
         self._batch.reset(0)
         self._features: np.ndarray | None = None
 
@@ -343,12 +347,14 @@ class InspectionAgentEnv(gym.Wrapper):
         self._raw: dict[str, np.ndarray] | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Reset the inspection env and return the agent's features of its first observation."""
         obs, info = self.env.reset(seed=seed, options=options)
         self.encoder.reset()
         self._raw = obs
         return self.encoder.update(obs), info
 
     def step(self, action):
+        """Apply the policy action for ``action_repeat`` control steps; returns features and the summed reward."""
         if self._raw is None:
             raise RuntimeError("call reset() before step()")
         u = np.asarray(action, dtype=np.float64)
@@ -356,9 +362,11 @@ class InspectionAgentEnv(gym.Wrapper):
         self.encoder.note_action(u)
         total = shaped = 0.0
         obs = self._raw
-        for k in range(self.spec_.action_repeat):
+        n_steps = 0
+        for _ in range(self.spec_.action_repeat):
             # the held *policy* action is decoded at every control step with the current attitude
             obs, reward, terminated, truncated, info = self.env.step(self.decoder(u, obs["quaternion"]))
+            n_steps += 1
             self.encoder.update(obs)
             total += reward
             if self._coarse_w > 0.0 and not terminated:
@@ -369,7 +377,7 @@ class InspectionAgentEnv(gym.Wrapper):
             if terminated or truncated:
                 break
         self._raw = obs
-        info["env_steps"] = k + 1
+        info["env_steps"] = n_steps
         info["shaping_reward"] = shaped
         total += shaped
         return self.encoder.features(), float(total), terminated, truncated, info
@@ -401,6 +409,7 @@ class EpisodeVariants(gym.Env):
         self.active: int | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Draw the next episode's variant (seeded by ``seed``) and reset it."""
         if seed is not None or self._rng is None:
             self._rng = np.random.default_rng(seed)
         self.active = int(self._rng.choice(len(self.envs), p=self.p))
@@ -409,6 +418,7 @@ class EpisodeVariants(gym.Env):
         return obs, info
 
     def step(self, action):
+        """Step the variant drawn at the last reset."""
         if self.active is None:
             raise RuntimeError("call reset() before step()")
         obs, reward, terminated, truncated, info = self.envs[self.active].step(action)
@@ -416,6 +426,7 @@ class EpisodeVariants(gym.Env):
         return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
+        """Close every variant's env."""
         for e in self.envs:
             e.close()
         super().close()
@@ -443,6 +454,7 @@ class FeatureNormalization:
         return cls(doc["mean"], doc["var"], clip=doc["clip_obs"], epsilon=doc["epsilon"], size=size)
 
     def __call__(self, features: np.ndarray) -> np.ndarray:
+        """The features normalised by the saved statistics and clipped to [-clip, clip] (float32)."""
         return np.clip((features - self.mean) / self.std, -self.clip, self.clip).astype(np.float32)
 
 
@@ -468,6 +480,7 @@ class AgentObservationEnv(gym.ObservationWrapper):
             self.observation_space = spaces.Box(-c, c, shape=env.observation_space.shape, dtype=np.float32)
 
     def observation(self, observation: np.ndarray) -> np.ndarray:
+        """The observation as the model takes it: normalised if the agent was trained with normalisation."""
         if self.normalization is None:
             return np.asarray(observation, dtype=np.float32)
         return self.normalization(observation)

@@ -100,10 +100,12 @@ class AuthorsNMPCPolicy(TrackingMPCPolicy):
     config_class = AuthorsNMPCConfig
 
     def build_ocp(self, config: AuthorsNMPCConfig) -> OCP:
+        """The authors' NMPC OCP."""
         return authors_nmpc_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
                    normal_xy: np.ndarray) -> np.ndarray:
+        """The tracking parameters with the reference yaw wrapped as the authors' code wraps it."""
         params = super().parameters(obs, state, normal_xy)
         params[6:8] = wrapped_yaw_quaternion(normal_xy)
         return params
@@ -128,6 +130,7 @@ class AuthorsPAMPCPolicy(PAMPCPolicy):
     """PAMPC with the authors' camera axis (body up; see the module docstring)."""
 
     def build_ocp(self, config: Any) -> OCP:
+        """The authors' PAMPC OCP: the tracking terms plus their image-coordinate perception residual."""
         def perception(x, p):
             point = p[N_TRACKING_PARAMS:N_TRACKING_PARAMS + 3] + p[3:6] * x[CLOCK]
             return authors_image_coordinates(x, point, config.camera, config.image_plane_guard)

@@ -341,9 +341,13 @@ int vtqp_sens(vtqp *h, const double *dx0, const double *dw, double act_tol, int 
         for (i = 0; i < nu; ++i) for (j = 0; j < nx; ++j) {
             double v = 0; for (l = 0; l < nx; ++l) v += B[l + i * nx] * P[l + j * nx]; h->G[i + j * nu] = v; }
         for (i = 0; i < nu; ++i) for (j = 0; j < nu; ++j) {
-            double v = R[i + j * nu]; for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * B[l + j * nx]; Huu[i + j * nu] = v; }
+            double v = R[i + j * nu];
+            for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * B[l + j * nx];
+            Huu[i + j * nu] = v; }
         for (i = 0; i < nu; ++i) for (j = 0; j < nx; ++j) {
-            double v = S[i + j * nu]; for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * A[l + j * nx]; Hux[i + j * nu] = v; }
+            double v = S[i + j * nu];
+            for (l = 0; l < nx; ++l) v += h->G[i + l * nu] * A[l + j * nx];
+            Hux[i + j * nu] = v; }
         if (gain_rows(nu, nx, h->active + k * nu, Huu, Hux, K)) return -1;
         if (k == 0) break;
         /* Pn = Q + A^T (P A) + Hux^T K  (then symmetrised) */
@@ -494,7 +498,8 @@ class HpipmQP:
         if lo_open.shape != hi_open.shape:
             raise ValueError("g_lower_open and g_upper_open must have one entry per general constraint")
         self.ng = len(lo_open)
-        self._g_masks = (np.ascontiguousarray(~lo_open, dtype=np.float64), np.ascontiguousarray(~hi_open, dtype=np.float64))
+        self._g_masks = (np.ascontiguousarray(~lo_open, dtype=np.float64),
+                         np.ascontiguousarray(~hi_open, dtype=np.float64))
         self._handle = lib.vtqp_create(self.N, self.nx, self.nu, int(self.idxbx.size),
                                        self.idxbx.ctypes.data, HPIPM_MODES[mode], int(iter_max), float(tol),
                                        -1.0 if mu0 is None else float(mu0), self.ng,

@@ -71,6 +71,7 @@ class NMPCWeights(LSQWeights):
 
     @classmethod
     def authors(cls) -> "NMPCWeights":
+        """The authors' weights (the defaults)."""
         return cls()
 
 
@@ -106,4 +107,5 @@ class NMPCPolicy(TrackingMPCPolicy):
     config_class = NMPCConfig
 
     def build_ocp(self, config: NMPCConfig) -> OCP:
+        """The NMPC's OCP."""
         return build_ocp(config)

@@ -42,7 +42,8 @@ Horizon: the authors' 30 steps of 0.1 s (3 s), RK4 multiple shooting instead of 
 Gauss-Legendre integrator (same order). Alternatives were measured on the model plant (0.7 m/s
 pass, 4 m/s mean wind along the normal, 20 s): 30 x 0.05 s and 60 x 0.05 s held the distance about
 0.07 m better (mean |d - d_ref| 0.74 m against 0.81 m - none of the baselines has integral action),
-15 x 0.2 s 0.16 m worse, with identical heading; no choice was clearly better, so the authors' stays. The command period is the environment's 0.01 s
+15 x 0.2 s 0.16 m worse, with identical heading; no choice was clearly better, so the authors' stays.
+The command period is the environment's 0.01 s
 (``control_dt``), shorter than a stage, so the warm start is kept rather than shifted
 (:func:`~controllers.tracking.warm_start_shifts`). Input bounds are the environment's action bounds
 (|rates| <= 100 deg/s, 0.3 to 2 m g), tighter than the authors' 3 rad/s and 3 m g: a policy cannot
@@ -93,6 +94,7 @@ class PAMPCWeights(LSQWeights):
 
     @classmethod
     def authors(cls) -> "PAMPCWeights":
+        """The authors' weights (the defaults)."""
         return cls()
 
 
@@ -177,6 +179,7 @@ class PAMPCPolicy(TrackingMPCPolicy):
     config_class = PAMPCConfig
 
     def build_ocp(self, config: PAMPCConfig) -> OCP:
+        """The PAMPC's OCP."""
         return build_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,

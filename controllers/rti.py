@@ -153,34 +153,42 @@ class OCP:
     # ---- sizes -------------------------------------------------------------------------------
     @property
     def nx(self) -> int:
+        """Number of states."""
         return self._dims[0]
 
     @property
     def nu(self) -> int:
+        """Number of inputs."""
         return self._dims[1]
 
     @property
     def np(self) -> int:
+        """Number of online parameters per solve."""
         return self._dims[2]
 
     @property
     def ny(self) -> int:
+        """Length of the stage residual."""
         return self._dims[3]
 
     @property
     def ny_terminal(self) -> int:
+        """Length of the terminal residual."""
         return self._dims[4]
 
     @property
     def nh(self) -> int:
+        """Number of path constraints per stage."""
         return self._dims[5]
 
     @property
     def n_vars(self) -> int:
+        """Length of the stage-ordered decision vector [x0 u0 ... xN]."""
         return self.horizon * (self.nx + self.nu) + self.nx
 
     @property
     def n_cons(self) -> int:
+        """Number of constraints: the dynamics and the path constraints of every stage."""
         return self.horizon * (self.nx + self.nh)
 
     # ---- layout helpers ----------------------------------------------------------------------
@@ -288,6 +296,7 @@ class SolveStats:
     step_norm: float = float("nan")
 
     def as_dict(self) -> dict[str, Any]:
+        """The statistics as a plain dict (for logs and records)."""
         return dict(self.__dict__)
 
 
@@ -593,6 +602,7 @@ class RTISolver:
     # ---- state of the iteration ---------------------------------------------------------------
     @property
     def initialized(self) -> bool:
+        """Whether the solver has a plan to warm-start from (:meth:`initialize` or a solve)."""
         return self._initialized
 
     @property
@@ -610,18 +620,22 @@ class RTISolver:
 
     @property
     def states(self) -> np.ndarray:
+        """The planned states, (N+1, nx) (a copy)."""
         return self.ocp.unpack(self.iterate)[0]
 
     @property
     def inputs(self) -> np.ndarray:
+        """The planned inputs, (N, nu) (a copy)."""
         return self.ocp.unpack(self.iterate)[1]
 
     @property
     def stage_weights(self) -> np.ndarray:
+        """The stage residual's weights in use (a copy)."""
         return self._W.copy()
 
     @property
     def terminal_weights(self) -> np.ndarray:
+        """The terminal residual's weights in use (a copy)."""
         return self._WN.copy()
 
     def set_weights(self, stage_weights, terminal_weights) -> None:
@@ -903,14 +917,17 @@ class IpoptOCPSolver:
 
     @property
     def iterate(self) -> np.ndarray:
+        """The last solution w = [x0 u0 ... xN] (a copy)."""
         if self._w is None:
             raise RuntimeError("no solution yet")
         return self._w.copy()
 
     def reset(self) -> None:
+        """Forget the solution and multipliers (the next solve starts cold)."""
         self._w = self._lam_g = self._lam_x = None
 
     def initialize(self, x0, inputs=None, states=None) -> None:
+        """Warm start from ``x0`` held over the horizon and the fallback input, or the given plan."""
         ocp = self.ocp
         us = np.tile(ocp.fallback_input, (ocp.horizon, 1)) if inputs is None else inputs
         xs = np.tile(x0, (ocp.horizon + 1, 1)) if states is None else states
@@ -955,7 +972,7 @@ class IpoptOCPSolver:
             return
         ocp = self.ocp
         nz, nx, N = ocp.nx + ocp.nu, ocp.nx, ocp.horizon
-        for vec, step in ((self._w, nz), (self._lam_x, nz)):
+        for vec in (self._w, self._lam_x):
             if vec is None:
                 continue
             n_body = N * nz
@@ -966,6 +983,7 @@ class IpoptOCPSolver:
             self._lam_g[:-m] = self._lam_g[m:].copy()
 
     def step(self, x0, params) -> np.ndarray:
+        """Solve for ``x0`` and ``params``, shift the warm start by a stage, and return the first input."""
         u = self.solve(x0, params)
         self.shift()
         return u

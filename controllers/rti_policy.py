@@ -38,7 +38,8 @@ stage-wise parameters of the half-space constraint
 
     n_k^T (p_k - c_k) - max(0, -n_k^T v_k)^2 / (2 a_brake) + s_k >= d_min + back-off,
 
-with cost l2 s_k^2 / 2 (+ l1 s_k with s_k >= 0 when ``clearance_l1`` > 0) per stage. The braking term makes the constraint see the stopping
+with cost l2 s_k^2 / 2 (+ l1 s_k with s_k >= 0 when ``clearance_l1`` > 0) per stage. The braking
+term makes the constraint see the stopping
 distance at the approach speed: the 0.3 s horizons of the VT-NMPC and the NMPC are shorter than a
 stop from a fast approach, so a position-only constraint would only appear once braking is too late.
 A half-space through the closest point of a convex part of the mesh contains none of that part, so
@@ -134,6 +135,7 @@ def _weight_number(name: str, value: Any) -> float:
 
 
 def check_positive_int(name: str, value: Any) -> int:
+    """``value`` as an int if it is an integer >= 1 (not a bool); else a ValueError naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
         raise ValueError(f"{name} must be a positive integer, got {value!r}")
     return int(value)
@@ -323,9 +325,11 @@ class LSQWeights:
         return np.concatenate(parts)
 
     def stage_vector(self) -> np.ndarray:
+        """The stage residual's weights as a vector."""
         return self._vector(self.STAGE)
 
     def terminal_vector(self) -> np.ndarray:
+        """The terminal residual's weights as a vector, times ``terminal_factor``."""
         return self.terminal_factor * self._vector(self.TERMINAL)
 
 
@@ -343,7 +347,8 @@ class MPCConfig:
     None for 3/7 d_ref, below d_ref; ``clearance_brake`` the deceleration [m/s^2] of the braking
     term; ``clearance_reaction`` [s] the time before that braking starts, during which the drone
     keeps its present acceleration (0 for the MPCs, which never tilt hard towards the structure;
-    the safety filter's policies may, and turning a tilted drone round takes time); ``clearance_l1`` / ``clearance_l2`` the slack's L1 / L2 prices (L1 > 0 bounds it below by 0); ``clearance_queries`` how many
+    the safety filter's policies may, and turning a tilted drone round takes time); ``clearance_l1`` /
+    ``clearance_l2`` the slack's L1 / L2 prices (L1 > 0 bounds it below by 0); ``clearance_queries`` how many
     stages of the predicted trajectory are looked up per step, evenly spread, each stage taking
     the half-space of the nearest looked-up stage; ``clearance_refresh`` [m], default d_ref / 70:
     the half-spaces are looked up again once a looked-up position has moved this far; nearer to the
@@ -526,7 +531,8 @@ def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
     h = ca.dot(n, x[0:3]) - b - stop + slack
     path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
     return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
-               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER), u_upper=np.append(ocp.u_upper, SLACK_UPPER),
+               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER),
+               u_upper=np.append(ocp.u_upper, SLACK_UPPER),
                fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
                path_constraint=path, h_lower=np.zeros(1), h_upper=np.full(1, np.inf))
 
@@ -811,6 +817,7 @@ class RTIPolicy(Policy):
         self._ahead = True
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Normalised env action in [-1, 1]^4 for one observation."""
         return self.action_of(self.command(obs))
 
     def action_of(self, c: np.ndarray) -> np.ndarray:

@@ -119,9 +119,11 @@ class FilterMPC(RTIPolicy):
         self._params[0, NU] = 1.0
 
     def build_ocp(self, config: SafetyFilterConfig) -> OCP:
+        """The filter's OCP."""
         return build_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray, normal_xy: np.ndarray) -> np.ndarray:
+        """The parameters of the present filter step (the command it keeps close to, set per step)."""
         return self._params
 
     def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
@@ -165,6 +167,7 @@ class FilterStats:
     times_ms: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, float]:
+        """The counts and times as plain numbers, named ``filter_*`` (for results tables)."""
         t = np.asarray(self.times_ms or [np.nan])
         n = max(self.steps, 1)
         return {"filter_steps": float(self.steps), "filter_interventions": float(self.interventions),
@@ -198,6 +201,7 @@ class SafetyFilter(Policy):
         return getattr(self.policy, "last_stats", None)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the wrapped policy, the filter's MPC and the statistics for a new episode."""
         if callable(getattr(self.policy, "reset", None)):
             self.policy.reset(seed=seed)
         self.mpc.reset(seed)
@@ -205,6 +209,7 @@ class SafetyFilter(Policy):
         self.last_policy_action = None
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The wrapped policy's action, corrected by the filter where needed to keep d_min."""
         a_pol = np.clip(_policy_action(self.policy, obs), -1.0, 1.0)
         self.last_policy_action = a_pol
         t0 = time.perf_counter()

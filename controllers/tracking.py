@@ -166,4 +166,5 @@ class TrackingMPCPolicy(RTIPolicy):
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
                    normal_xy: np.ndarray) -> np.ndarray:
+        """The OCP's online parameters: the tracking reference for this observation."""
         return self.reference(obs, state, normal_xy).parameters()

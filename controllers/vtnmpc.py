@@ -22,7 +22,8 @@ v_pt_B is the inspection point's velocity expressed in the body frame of the mea
 (once per solve, as in the paper). The heading is normalised by ||a_xy|| (as the authors' code does; the paper's
 formula omits it but its reference 1 needs it) and by default uses the full attitude, as printed,
 rather than the authors' yaw-only approximation (``heading_model="camera"`` selects the latter,
-which is the heading of the environment's gimbal camera). The thrust reference is the hover thrust m g of the one parameter set
+which is the heading of the environment's gimbal camera). The thrust reference is the hover thrust
+m g of the one parameter set
 (the authors' 44.6 N was a bug). Online parameters per solve: the point p, the normal n (n_z
 forced to 0 and renormalised), v_pt_B and a world-frame disturbance acceleration a_ext of the
 model (zero unless the optional disturbance observer is on):
@@ -97,6 +98,7 @@ class VTNMPCWeights(LSQWeights):
 
     @classmethod
     def paper(cls) -> "VTNMPCWeights":
+        """The paper's weights (the defaults)."""
         return cls()
 
     @classmethod
@@ -260,9 +262,11 @@ class VTNMPCPolicy(RTIPolicy):
         self._a_hat = np.zeros(3)
 
     def build_ocp(self, config: VTNMPCConfig) -> OCP:
+        """The VT-NMPC's OCP."""
         return build_ocp(config)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the solver and the disturbance estimate for a new episode."""
         super().reset(seed)
         self._a_hat = np.zeros(3)
 

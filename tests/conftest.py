@@ -27,7 +27,8 @@ from wt_inspect_env.physics.quadrotor import QuadrotorParams, get_preset
 # Written out in full rather than relying on Hypothesis' own CI detection (6.x versions differ).
 settings.register_profile("ci", derandomize=True, database=None, print_blob=True, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])
-settings.register_profile("dev", derandomize=False)   # explicit: Hypothesis derandomises its default profile when it detects CI itself
+# explicit: Hypothesis derandomises its default profile when it detects CI itself
+settings.register_profile("dev", derandomize=False)
 
 
 def _profile() -> str:

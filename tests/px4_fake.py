@@ -3,7 +3,8 @@
 It follows the parts of PX4's offboard behaviour the runner depends on (PX4 user guide,
 "Offboard Mode"): OFFBOARD is refused (MAV_RESULT_TEMPORARILY_REJECTED) unless set-points have
 been arriving (at least 5, the last within 0.5 s); in OFFBOARD, set-points missing for
-``offboard_loss_s`` (PX4's COM_OF_LOSS_T) trigger the failsafe into hold, which is recorded (``mode_delay_s`` makes an accepted switch out
+``offboard_loss_s`` (PX4's COM_OF_LOSS_T) trigger the failsafe into hold, which is recorded
+(``mode_delay_s`` makes an accepted switch out
 of OFFBOARD take effect late, as on a busy autopilot, so a runner that stops streaming on the ACK
 rather than on the HEARTBEAT is caught);
 COMMAND_LONG is acknowledged; PARAM_REQUEST_READ answers MPC_THR_HOVER and THR_MDL_FAC;
@@ -248,7 +249,8 @@ class FakePX4:
             if self.silence_all:
                 continue
             if now >= next_hb:
-                base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0)
+                base = (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+                        | (mavlink.MAV_MODE_FLAG_SAFETY_ARMED if self.armed else 0))
                 self._send(self.link.mav.heartbeat_encode(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4,
                                                               base, self.mode, mavlink.MAV_STATE_ACTIVE))
                 next_hb = now + 0.1

@@ -34,7 +34,8 @@ def _blade_frame(spec: TurbineSpec, k: int):
 
 def test_nrel_preset_has_the_reference_dimensions(nrel):
     s = nrel.spec
-    assert (s.tower_height, s.hub_radius, s.overhang, s.tower_radius, s.tower_top_radius) == (90.0, 1.5, 5.0, 3.0, 1.935)
+    assert ((s.tower_height, s.hub_radius, s.overhang, s.tower_radius, s.tower_top_radius)
+            == (90.0, 1.5, 5.0, 3.0, 1.935))
     assert s.blade_length == pytest.approx(61.5) and s.blade_width == pytest.approx(4.652)
     c = nrel.rotor_center
     axis, radial, chord_dir = _blade_frame(s, 0)
@@ -132,7 +133,7 @@ def test_nrel_plan_is_complete_clear_and_its_normals_turn_with_the_twist(nrel, n
         want.append(angle(m / np.linalg.norm(m)))
     got = angle(n[mid])
     assert np.abs(got - np.array(want)).max() < 2.0
-    assert np.ptp(got) > 9.0                                       # it does turn, by more than the twist's 11 deg less margin
+    assert np.ptp(got) > 9.0        # it does turn, by more than the twist's 11 deg less margin
 
 
 def test_preset_through_gym_make_and_overrides():

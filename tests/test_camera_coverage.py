@@ -357,7 +357,7 @@ def test_vectorised_visibility_matches_slow_reference(samples):
     cfg = CameraConfig(focal_length_mm=20.0, max_range=12.0, max_incidence_deg=70.0)
     cam = GimbalCamera(cfg)
     total_visible = total_culled_by_occlusion = 0
-    for case in range(4):
+    for _ in range(4):
         pos = rng.uniform(-5, 5, 3)
         yaw = rng.uniform(-math.pi, math.pi)
         origin, R = cam.pose(pos, [0, 0, math.sin(yaw / 2), math.cos(yaw / 2)])
@@ -533,7 +533,8 @@ def test_tower_hides_blade_roots_seen_from_behind():
     try:
         cam = GimbalCamera(CameraConfig(mount_offset=(0, 0, 0), focal_length_mm=12.0, max_range=20.0))
         origin, R = cam.pose([0.0, -10.0, 112.0], YAW_PLUS_Y)
-        with_occ = TriangleVisibility(cam, tb.blade_vertices, tb.blade_normals, PyBulletOccluder(cid)).visible(origin, R)
+        with_occ = TriangleVisibility(cam, tb.blade_vertices, tb.blade_normals,
+                                      PyBulletOccluder(cid)).visible(origin, R)
         without = TriangleVisibility(cam, tb.blade_vertices, tb.blade_normals, None).visible(origin, R)
         assert not np.any(with_occ & ~without)
         hidden = np.flatnonzero(without & ~with_occ)

@@ -25,7 +25,8 @@ def test_tilted_thrust_accelerates_sideways():
     m = QuadrotorModel()
     th = 0.3
     q = np.array([0, np.sin(th / 2), 0, np.cos(th / 2)])  # rotation about +y: nose down
-    x = np.zeros(10); x[6:10] = q
+    x = np.zeros(10)
+    x[6:10] = q
     xdot = m.xdot(x, [0, 0, 0, m.params.weight / np.cos(th)])
     a_world = quat_to_rotmat_np(q) @ xdot[3:6]  # with zero velocity, v_dot = R^T a_world
     np.testing.assert_allclose(a_world, [GRAVITY * np.tan(th), 0, 0], atol=1e-9)
@@ -49,7 +50,8 @@ def test_quaternion_norm_preserved_by_continuous_dynamics():
     rng = np.random.default_rng(0)
     m = QuadrotorModel()
     for _ in range(20):
-        q = rng.normal(size=4); q /= np.linalg.norm(q)
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
         x = np.concatenate([rng.normal(size=6), q])
         xdot = m.xdot(x, rng.normal(size=4))
         assert abs(q @ xdot[6:10]) < 1e-12

@@ -59,7 +59,8 @@ def test_same_seed_same_trajectory_different_seed_differs():
     np.testing.assert_array_equal(ta, tb)
     tc = _rollout(a, seed=8)
     assert ta.shape != tc.shape or not np.allclose(ta, tc)
-    a.close(); b.close()
+    a.close()
+    b.close()
 
 
 def test_environments_in_one_process_are_independent():
@@ -68,7 +69,8 @@ def test_environments_in_one_process_are_independent():
     ref = _rollout(solo, seed=3, n=80)
     solo.close()
     e1, e2 = make(**kw), make(**kw)
-    e1.reset(seed=3); e2.reset(seed=99)
+    e1.reset(seed=3)
+    e2.reset(seed=99)
     hover = e1.unwrapped.scaling.hover_action()
     # interleave: e2 takes wild actions between e1's steps; e1 must not notice
     rng = np.random.default_rng(123)
@@ -82,7 +84,8 @@ def test_environments_in_one_process_are_independent():
         if term or trunc:
             break
     np.testing.assert_array_equal(np.concatenate([np.ravel(t) for t in out]), ref)
-    e1.close(); e2.close()
+    e1.close()
+    e2.close()
 
 
 def test_close_frees_the_pybullet_client():
@@ -127,7 +130,6 @@ def test_terminates_on_collision_with_the_blade():
 def test_terminates_when_leaving_the_working_volume():
     env = make(wind="none", working_margin=1.0)
     env.reset(seed=0)
-    u = env.unwrapped
     up = np.array([0, 0, 0, 1.0], dtype=np.float32)   # full thrust: climbs out of the box
     for _ in range(2000):
         _, _, term, trunc, info = env.step(up)
@@ -281,7 +283,8 @@ def test_seed_option_makes_the_first_reset_reproducible():
     assert not np.allclose(oa["position"], oc["position"])
     with pytest.raises(ValueError, match="seed"):
         make(seed=-1)
-    a.close(); b.close()
+    a.close()
+    b.close()
 
 
 def test_start_progress_starts_on_the_path_at_the_ideal_pose():

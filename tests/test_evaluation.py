@@ -320,7 +320,8 @@ def test_results_md_states_the_runs_own_camera_rate_occlusion_and_control_step(t
                                                                                step) -> None:
     run_evaluation("surface", ["nmpc"], [0], out=tmp_path, jobs=1, max_time=0.05, env_overrides=overrides,
                    figures=False, progress=False)
-    metrics_line = next(l for l in (tmp_path / "results.md").read_text().splitlines() if l.startswith("- Metrics"))
+    metrics_line = next(line for line in (tmp_path / "results.md").read_text().splitlines()
+                        if line.startswith("- Metrics"))
     assert frames in metrics_line and step in metrics_line
 
 

@@ -83,7 +83,7 @@ def test_default_turbine_has_12_surfaces_equal_to_the_long_faces(turb):
     cell = 50.0 / math.ceil(50.0 / 1.5)
     for s in surfaces:
         i = s.triangles[0]
-        k, face = turb.triangle_blade[i], turb.triangle_face[i]
+        face = turb.triangle_face[i]
         np.testing.assert_allclose(s.normal, turb.blade_normals[i], atol=1e-12)
         # end nodes: on the face's centre line, half a cell in from the root and the tip
         radial = (s.tip - s.root) / np.linalg.norm(s.tip - s.root)
@@ -230,7 +230,7 @@ def test_downward_faces_are_deferred_to_phase_2(plan):
     el1 = np.array([s.elevation_deg for s in plan.surfaces])
     np.testing.assert_array_equal(plan.surface_phase == 2, el1 < -45)
     assert np.sum(plan.surface_phase == 2) == 2                           # the paper's last two surfaces
-    for i, g in plan.surfaces_phase2.items():
+    for g in plan.surfaces_phase2.values():
         assert -45 <= g.elevation_deg <= 75                                # viewable after the turn
     assert np.all(np.diff(plan.phase) >= 0) and set(plan.phase) == {1, 2}
     assert plan.turbine_phase2.rotor_turn_deg == pytest.approx(120.0)

@@ -78,7 +78,8 @@ def fly(world, tmp_path, fn=None, *, fake_kw=None, during=None, policy=None, **c
                warmup_s=0.3, hold_timeout=1.5, connect_timeout=5.0)
     cfg.update(cfg_kw)
     if policy is None:
-        policy = (lambda env: Scripted(env, fn or (lambda p, obs: p.hover)))
+        def policy(env):
+            return Scripted(env, fn or (lambda p, obs: p.hover))
     t = None
     if during is not None:
         t = threading.Thread(target=during, args=(fake,), daemon=True)
@@ -169,7 +170,8 @@ def test_body_rate_command_reaches_the_vehicle_in_frd(world, tmp_path):
 # ------------------------------------------------------------------------------------ safety
 def test_geofence_box_floor(world, tmp_path):
     z0 = world["x0"][2]
-    sink = lambda p, obs: [p.hover[0], p.hover[1], p.hover[2], -1.0]      # least thrust: it sinks
+    def sink(p, obs):
+        return [p.hover[0], p.hover[1], p.hover[2], -1.0]                 # least thrust: it sinks
     flight, fake = fly(world, tmp_path, sink, max_time=2.0, safety=SafetyConfig(min_altitude=z0 - 0.3))
     assert flight.termination == "hold:geofence_box"
     assert_left_offboard_with_stream(fake, flight)
@@ -190,7 +192,9 @@ def test_geofence_clearance_to_the_mesh(world, tmp_path):
 
 
 def test_max_speed(world, tmp_path):
-    sink = lambda p, obs: [p.hover[0], p.hover[1], p.hover[2], -1.0]
+    def sink(p, obs):
+        return [p.hover[0], p.hover[1], p.hover[2], -1.0]
+
     flight, fake = fly(world, tmp_path, sink, max_time=2.0, safety=SafetyConfig(max_speed=0.5, min_altitude=0.0))
     assert flight.termination == "hold:max_speed"
     res = load_run(flight.run_file)

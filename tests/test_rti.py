@@ -209,7 +209,7 @@ def test_forced_qp_failure_falls_back_to_shifted_plan_then_hover(cache_dir):
     # weights so large that the Hessian overflows: HPIPM cannot solve the QP
     rti.set_weights(np.full(3, 1e300), np.full(2, 1e300))
     sources = []
-    for k in range(ocp.horizon + 2):
+    for _ in range(ocp.horizon + 2):
         plan_next = rti.inputs[0].copy()      # the shifted previous plan's next input
         u = rti.step(x, p)
         st = rti.last_stats

@@ -134,7 +134,8 @@ def test_prepare_ahead_runs_only_the_feedback_after_the_command(options):
         calls: list[str] = []
         for name in ("prepare", "feedback"):
             original = getattr(policy.solver, name)
-            setattr(policy.solver, name, lambda *a, _f=original, _n=name: (calls.append(_n), _f(*a))[1])
+            setattr(policy.solver, name,
+                    lambda *a, _f=original, _n=name, _calls=calls: (_calls.append(_n), _f(*a))[1])
         act = policy.act
         order: list[list[str]] = []
 

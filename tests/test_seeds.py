@@ -116,9 +116,11 @@ def test_curriculum_seeds_fine_tune_their_own_seeds_models(tmp_path):
     kw = dict(algo="ppo", task="surface", timesteps=300, n_envs=1, recipe=recipe, progress_bar=False)
     train_seeds([0, 1], tmp_path / "stage1", **kw)
     with pytest.raises(ValueError, match="--resume: no model"):
-        train_seeds([0, 2], tmp_path / "bad", **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
+        train_seeds([0, 2], tmp_path / "bad",
+                    **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
     assert not (tmp_path / "bad").exists()
-    doc = train_seeds([0, 1], tmp_path / "stage2", **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
+    doc = train_seeds([0, 1], tmp_path / "stage2",
+                      **{**kw, "resume": str(tmp_path / "stage1" / "seed_{seed}" / "model.zip")})
     for s in (0, 1):
         summary = json.loads((tmp_path / "stage2" / f"seed_{s}" / "summary.json").read_text())
         assert summary["resumed_from"] == str(tmp_path / "stage1" / f"seed_{s}" / "model.zip")

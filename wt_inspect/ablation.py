@@ -32,7 +32,8 @@ fly the column that changed. Rows that change only the camera or the coverage ru
 :data:`~wt_inspect.evaluation.runner.COVERAGE_KEYS`) are not flown either: neither acts on the flight, so the previous
 row's recorded flights are re-scored under the new camera and rule
 (:func:`~wt_inspect.evaluation.runner.rescore_coverage`, per-triangle identical to flying them -
-tested), which saves a third of the study's flights. Each row's runs go through :func:`~wt_inspect.evaluation.run_evaluation`
+tested), which saves a third of the study's flights. Each row's runs go through
+:func:`~wt_inspect.evaluation.run_evaluation`
 (its own directory under ``OUT/rows/``, resumable), and the study writes ``OUT/results.md``,
 ``OUT/results.json`` and ``OUT/ablation.png`` (atomically). ``--task blade`` or ``surface`` runs the
 chain on the smaller tasks (scenarios ``paper-faithful-blade`` / ``-surface``) when the full mission
@@ -207,9 +208,11 @@ def markdown(doc: Mapping[str, Any]) -> str:
                 "each timed when it was flown (resumed ones included; re-scoring excluded)"
                 if doc.get("n_flights") else "") + ".", ""]
     if doc.get("n_rows", len(STEPS)) < doc.get("of_chain", len(STEPS)):
-        lines += [f"Only the first {doc['n_rows']} of the chain's {doc['of_chain']} rows (`--rows {doc['n_rows']}`).", ""]
+        lines += [f"Only the first {doc['n_rows']} of the chain's {doc['of_chain']} rows "
+                  f"(`--rows {doc['n_rows']}`).", ""]
     if not doc.get("complete", True):
-        lines += [f"**Incomplete: {len(doc['rows'])} of {doc.get('n_rows', len(STEPS))} rows finished** (rerun the same command to "
+        lines += [f"**Incomplete: {len(doc['rows'])} of {doc.get('n_rows', len(STEPS))} rows finished** "
+                  "(rerun the same command to "
                   "resume: finished runs are reused).", ""]
     for w in doc["winds"]:
         lines += [f"## Mean wind {w:g} m/s", "",
@@ -300,6 +303,7 @@ def build_parser(prog: str = "wt-inspect ablation") -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect ablation") -> int:
+    """``wt-inspect ablation``: run (or resume) the ablation chain given by ``argv``; returns the exit code."""
     parser = build_parser(prog)
     args = parser.parse_args(argv)
     try:

@@ -51,12 +51,14 @@ class StudyRun:
     spec: Any
 
     def label(self) -> str:
+        """How the run is named in the digest's table (scenario, controller, wind, seed; or the start)."""
         s = self.spec
         if isinstance(s, Mapping):
             return f"adversarial start {s['start']}{' filtered' if s['filtered'] else ''}"
         return f"{s.scenario} {s.controller} wind {s.wind:g} seed {s.seed}"
 
     def spec_dict(self) -> dict[str, Any]:
+        """The run's spec as plain data."""
         return dict(self.spec) if isinstance(self.spec, Mapping) else self.spec.to_dict()
 
 

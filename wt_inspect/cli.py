@@ -24,10 +24,14 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "ablation": ("wt_inspect.ablation", "paper-faithful -> project default, one change at a time"),
     "train": ("agents.train_cli", "train a stable-baselines3 agent on an inspection task (or clone demonstrations)"),
     "demos": ("wt_inspect.demonstrations", "record expert (MPC) demonstrations as a Minari dataset"),
-    "tune": ("wt_inspect.commands.tune", "tune an MPC's weights with Optuna; writes a weights file (NAME:weights=FILE)"),
-    "campaign": ("wt_inspect.commands.campaign", "robustness campaign: many randomised episodes, crashes/fallbacks/memory"),
-    "rescore": ("wt_inspect.commands.rescore", "recorded runs' coverage under another camera / coverage rule, no flight"),
-    "reproduce": ("wt_inspect.reproduce", "rerun every committed result from results/reproduce.toml; --check: no flight"),
+    "tune": ("wt_inspect.commands.tune",
+             "tune an MPC's weights with Optuna; writes a weights file (NAME:weights=FILE)"),
+    "campaign": ("wt_inspect.commands.campaign",
+                 "robustness campaign: many randomised episodes, crashes/fallbacks/memory"),
+    "rescore": ("wt_inspect.commands.rescore",
+                "recorded runs' coverage under another camera / coverage rule, no flight"),
+    "reproduce": ("wt_inspect.reproduce",
+                  "rerun every committed result from results/reproduce.toml; --check: no flight"),
     "study": ("wt_inspect.studies", "the analyses behind some results/ folders (sm-vs-wind, wind-offset, ...)"),
     # the PX4 bridge: its own package above every other (named here by string, never imported below)
     "fly": ("wt_inspect_px4.offboard", "fly a policy on a PX4 vehicle over MAVLink (OFFBOARD), scored like evaluate"),
@@ -82,6 +86,7 @@ def _dispatch(table: dict[str, tuple[str, str]], name: str, argv: list[str], pro
 
 
 def main(argv: list[str] | None = None) -> int:
+    """The ``wt-inspect`` entry point: dispatch ``argv`` (default: the command line) to its subcommand."""
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv or argv[0] in {"-h", "--help"}:
         print(_usage())

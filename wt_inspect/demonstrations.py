@@ -188,9 +188,11 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
             bar.update(1)
         bar.close()
         dataset = minari.create_dataset_from_buffers(
-            dataset_id=dataset_id, buffer=buffers, env=env, algorithm_name=f"{cfg.expert} + N(0, {cfg.action_noise}) action noise",
-            eval_env=env, author="wt-inspect", author_email="https://github.com/wt-inspect", description=(f"{cfg.expert} flying the {cfg.task} task of {env_id}; executed actions "
-                                              "carry Gaussian noise, infos['expert_action'] is the clean label"))
+            dataset_id=dataset_id, buffer=buffers, env=env,
+            algorithm_name=f"{cfg.expert} + N(0, {cfg.action_noise}) action noise",
+            eval_env=env, author="wt-inspect", author_email="https://github.com/wt-inspect",
+            description=(f"{cfg.expert} flying the {cfg.task} task of {env_id}; executed actions "
+                         "carry Gaussian noise, infos['expert_action'] is the clean label"))
         meta = {"config": {**cfg.__dict__, "winds": list(cfg.winds)}, "env_id": env_id,
                 "env_options": dict(env_options or {}), "episodes": episode_meta, "steps": steps,
                 "total_episodes": dataset.total_episodes,
@@ -212,6 +214,7 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
 
 
 def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
+    """``wt-inspect demos``: record the dataset given by ``argv``; returns the exit code."""
     import argparse
 
     ap = argparse.ArgumentParser(prog=prog, description="Record expert demonstrations as a Minari dataset.")
@@ -228,7 +231,8 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
             raise ValueError("--config and --env must be JSON objects")
         unknown = sorted(set(fields) - set(DemoConfig.__dataclass_fields__))
         if unknown:
-            raise ValueError(f"unknown demo config field(s) {unknown}; valid: {sorted(DemoConfig.__dataclass_fields__)}")
+            raise ValueError(f"unknown demo config field(s) {unknown}; "
+                             f"valid: {sorted(DemoConfig.__dataclass_fields__)}")
         from .evaluation.registry import check_controller
         check_dataset_name(args.name)   # before anything is imported, built or recorded
         check_out_dir(args.out, "--out")

@@ -124,6 +124,7 @@ def code_version(study: Study, fingerprint: str | None = None) -> str:
 
 
 def read_provenance(root: Path, study: Study) -> dict | None:
+    """The provenance record of a study's results folder, or None if it is missing or unreadable."""
     p = root / study.folder / PROVENANCE
     try:
         return json.loads(p.read_text())
@@ -381,6 +382,7 @@ def _record_current(root: Path, studies: list[Study], *, force: bool) -> int:
 
 
 def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
+    """``wt-inspect reproduce``: rerun (or, with ``--check``, check) the manifest's studies."""
     ap = argparse.ArgumentParser(prog=prog, description="Rerun every committed result from the manifest "
                                  f"({MANIFEST}), or check without flying that each is current.")
     mode = ap.add_mutually_exclusive_group()

@@ -120,6 +120,7 @@ class WindTurbineInspectionEnv(gym.Env):
     # ------------------------------------------------------------------ views of drone 0
     @property
     def hooks(self) -> TaskHooks:
+        """The task's observation, reward and termination rules (shared with the world)."""
         return self.world.hooks
 
     @property
@@ -153,6 +154,7 @@ class WindTurbineInspectionEnv(gym.Env):
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | None = None, options: dict | None = None):
+        """Start an episode; ``options`` (wind, start offset, ...) hold for this episode only."""
         # Options first, so bad ones are refused before anything changes; they hold for this
         # episode only (the next reset without them is the constructor's configuration again).
         w = self.world
@@ -172,6 +174,7 @@ class WindTurbineInspectionEnv(gym.Env):
         return self._observation(np.zeros(1, dtype=bool)), self._info(None, None)
 
     def step(self, action):
+        """Hold ``action`` for one control step; returns the Gymnasium step tuple."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
         a = check_actions(action)    # shared with the vector env: the same input is refused alike
@@ -181,12 +184,14 @@ class WindTurbineInspectionEnv(gym.Env):
         return obs, float(r.reward[0]), bool(r.terminated[0]), bool(r.truncated[0]), info
 
     def render(self):
+        """The camera and overview images (``render_mode="rgb_array"``; None otherwise)."""
         if self.render_mode != "rgb_array":
             return None
         from .scene.render import render_views
         return render_views(self)
 
     def close(self) -> None:
+        """Close the world's simulator (idempotent)."""
         if not self._closed:
             self.world.close()
             self._closed = True

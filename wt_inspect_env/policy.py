@@ -133,14 +133,16 @@ class PolicyEntry:
     ``factory(env)`` builds the policy from the *unwrapped* environment (its ``params``,
     ``config.standoff``, ``dt``, ``config.camera``, and ``mission`` - the planned path and the
     turbine of each rotor position, which the MPCs keep their clearance from), so the policy's
-    model always matches the simulated drone and world. An entry with ``takes_argument`` is addressed as ``NAME:ARG`` (e.g.
+    model always matches the simulated drone and world. An entry with ``takes_argument`` is
+    addressed as ``NAME:ARG`` (e.g.
     ``ppo:models/agent.zip``) and its factory is ``factory(env, arg)``; ``check(arg)`` raises a
     one-line ValueError for a bad argument before any run starts, and ``fingerprint(arg)`` names
     what makes the argument's behaviour unique (a model file's content hash), so a changed model
     is a different run. An entry with ``optional_argument`` (the argument's form for help, e.g.
     ``"weights=FILE"``) works both plain (``factory(env)``) and as ``NAME:ARG`` (``factory(env, arg)``,
     with ``check`` and ``fingerprint`` as above); ``label(arg)``, if given, is how a results table names
-    the argument (default: the stem of a file path). An entry with ``trust_option`` loads files that might carry code: its
+    the argument (default: the stem of a file path). An entry with ``trust_option`` loads files
+    that might carry code: its
     ``factory`` and ``check`` take the keyword ``trust_model`` and run code from such a file only
     when it is True (the user's explicit ``--trust-model``); otherwise they refuse it.
     """

@@ -58,6 +58,7 @@ def quat_wxyz_to_matrix(q: Any) -> np.ndarray:
 
 
 def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
+    """Quaternion (w, x, y, z) of rotation matrix ``R``, with w >= 0 (MAVLink's order)."""
     x, y, z, w = Rotation.from_matrix(R).as_quat()
     return np.array([w, x, y, z]) * (1.0 if w >= 0 else -1.0)
 
@@ -119,6 +120,7 @@ class Site:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "Site":
+        """The site from its JSON object (``heading_deg`` and one of ``base_ned`` / ``base_lla``)."""
         if not isinstance(data, Mapping):
             raise ValueError(f"site must be a JSON object, got {data!r}")
         check_unknown_options("site", data.keys(), ("heading_deg", "base_ned", "base_lla"))
@@ -180,12 +182,15 @@ class SiteFrame:
 
     @property
     def R_w_ned(self) -> np.ndarray:
+        """Rotation from PX4's local NED frame to the project's world frame W."""
         return rz(-self.yaw) @ E_ENU_NED
 
     def position_to_project(self, p_ned: Any) -> np.ndarray:
+        """A position in PX4's local NED frame [m] -> the project's world frame W."""
         return self.R_w_ned @ (np.asarray(p_ned, float) - self.base_ned) + self.base_w
 
     def position_to_ned(self, p_w: Any) -> np.ndarray:
+        """A position in the project's world frame W [m] -> PX4's local NED frame."""
         return self.R_w_ned.T @ (np.asarray(p_w, float) - self.base_w) + self.base_ned
 
     def vector_to_project(self, v_ned: Any) -> np.ndarray:
@@ -193,6 +198,7 @@ class SiteFrame:
         return self.R_w_ned @ np.asarray(v_ned, float)
 
     def vector_to_ned(self, v_w: Any) -> np.ndarray:
+        """A free world vector (velocity, acceleration): W -> NED."""
         return self.R_w_ned.T @ np.asarray(v_w, float)
 
     def attitude_to_project(self, q_wxyz: Any) -> np.ndarray:
@@ -201,6 +207,7 @@ class SiteFrame:
         return Rotation.from_matrix(R).as_quat()
 
     def attitude_to_ned(self, q_xyzw: Any) -> np.ndarray:
+        """Project quaternion (x, y, z, w) FLU -> W  ->  MAVLink quaternion (w, x, y, z) FRD -> NED."""
         q = check_array("quaternion", q_xyzw, (4,))
         R = self.R_w_ned.T @ Rotation.from_quat(q).as_matrix() @ F_FRD_FLU
         return matrix_to_quat_wxyz(R)

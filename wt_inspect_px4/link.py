@@ -44,6 +44,7 @@ def px4_mode(main: int, sub: int = 0) -> int:
 
 
 def px4_main_mode(custom_mode: int) -> int:
+    """PX4's main flight mode from a heartbeat's ``custom_mode`` (its bits 16-23)."""
     return (int(custom_mode) >> 16) & 0xFF
 
 
@@ -61,6 +62,7 @@ class Endpoint:
 
     @classmethod
     def parse(cls, url: str, option: str = "endpoint") -> "Endpoint":
+        """The endpoint of a URL such as ``udp://:14540`` or ``tcp://HOST:PORT`` (``option`` names it in errors)."""
         if not isinstance(url, str) or "://" not in url:
             raise ValueError(f"{option} must look like udp://:14540, udp://HOST:PORT, tcp://:4560 or "
                              f"tcp://HOST:PORT, got {url!r}")
@@ -77,6 +79,7 @@ class Endpoint:
 
     @property
     def listens(self) -> bool:
+        """Whether this end waits for the peer (no host given) rather than contacting it."""
         return self.host == ""
 
 
@@ -242,6 +245,7 @@ class MavlinkLink:
 
     @property
     def local_port(self) -> int:
+        """The local port the transport is bound to (useful when it was 0: any free port)."""
         return self._transport.local_port
 
     @property
@@ -251,6 +255,7 @@ class MavlinkLink:
         return t.peer is not None and (t.ep.kind == "udp" or t.conn is not None)
 
     def send(self, msg: Any) -> None:
+        """Encode and send one MAVLink message (thread-safe)."""
         with self._send_lock:
             self._encoder.send(msg)
 
@@ -313,6 +318,7 @@ class MavlinkLink:
                         traceback.print_exc()
 
     def close(self) -> None:
+        """Stop the reader (and the delay thread, if any) and close the transport."""
         self._stop.set()
         self._reader.join(timeout=1.0)
         if self._delayer is not None:

@@ -145,22 +145,27 @@ class VehicleSim:
     # ---------------------------------------------------------------- the world's simulator interface
     @property
     def state(self) -> np.ndarray:
+        """The vehicle's state in the simulator's layout, as a batch of one drone (a copy)."""
         return self._state[None].copy()
 
     @property
     def body_rates(self) -> np.ndarray:
+        """The vehicle's body rates [rad/s], as a batch of one drone (a copy)."""
         return self._rates[None].copy()
 
     @property
     def world_velocity(self) -> np.ndarray:
+        """The vehicle's velocity in the world frame [m/s] (a copy)."""
         return self._v_world.copy()
 
     @property
     def time(self) -> np.ndarray:
+        """Flight time [s] since the start, as a batch of one drone."""
         return np.array([self._steps * self.dt])
 
     @property
     def last_wind(self) -> np.ndarray:
+        """The wind: unknown on a vehicle (NaN)."""
         return np.full((1, 3), np.nan)          # not measured on a vehicle
 
     @property
@@ -222,6 +227,7 @@ class VehicleHooks(TaskHooks):
     ``hold:<reason>``; otherwise the task's own terminations."""
 
     def terminations(self, world: Any, state: np.ndarray, finite: np.ndarray, collision: np.ndarray) -> np.ndarray:
+        """The task's terminations, plus a hold as soon as the vehicle's safety layer has aborted."""
         vehicle = getattr(world.sim, "vehicle", None)
         reason = vehicle is not None and vehicle.abort_reason
         if reason:
@@ -237,9 +243,11 @@ class VehicleInspectionEnv(WindTurbineInspectionEnv):
         super().__init__(hooks=VehicleHooks(), **options)
 
     def attach(self, vehicle_sim: VehicleSim) -> None:
+        """Fly the env's episodes on ``vehicle_sim`` instead of the simulator."""
         self.world.sim = self.sim = vehicle_sim      # type: ignore[assignment]
 
     def close(self) -> None:
+        """Give the env its own simulator back, then close it."""
         sim = self.sim
         if isinstance(sim, VehicleSim):
             self.world.sim = self.sim = sim._sim
@@ -256,9 +264,11 @@ class GuardedPolicy:
 
     @property
     def last_stats(self) -> Any:
+        """The wrapped policy's solver statistics of its last step, if it keeps any."""
         return getattr(self.policy, "last_stats", None)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reset the wrapped policy; an exception in it aborts the flight into hold."""
         try:
             self.policy.reset(seed=seed)
         except Exception as exc:
@@ -271,6 +281,7 @@ class GuardedPolicy:
         return self.hover.copy()
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The wrapped policy's action, or hover once the flight is aborted (an exception aborts it)."""
         self.vsim.point = np.asarray(obs["point"], float)
         if self.vsim.vehicle.abort_reason is not None:
             return self.hover.copy()
@@ -321,6 +332,7 @@ class Flight:
 
     @property
     def termination(self) -> str | None:
+        """How the flight ended, or None while it has not."""
         return None if self.result is None else self.result.termination
 
 
@@ -446,6 +458,7 @@ def _json_default(o: Any) -> Any:
 
 # ---------------------------------------------------------------------------------------- CLI
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect fly`` (its epilog: the module's example)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[2:8]))
@@ -485,6 +498,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def config_from_args(args: argparse.Namespace) -> FlyConfig:
+    """The flight configuration from parsed arguments (the controller is checked first)."""
     registry.check_controller(args.controller, trust_model=args.trust_model)
     safety = SafetyConfig(box_margin=args.fence_margin, min_clearance=args.min_clearance, max_speed=args.max_speed,
                           min_altitude=args.min_altitude, state_timeout=args.state_timeout,
@@ -497,6 +511,7 @@ def config_from_args(args: argparse.Namespace) -> FlyConfig:
 
 
 def main(argv: list[str], prog: str = "wt-inspect fly") -> int:
+    """``wt-inspect fly``: fly the mission given by ``argv`` through PX4; returns the exit code."""
     args = build_parser(prog).parse_args(argv)
     try:
         from .link import Endpoint
@@ -509,7 +524,8 @@ def main(argv: list[str], prog: str = "wt-inspect fly") -> int:
     term = flight.termination
     m = flight.result.metrics if flight.result is not None else {}
     print(f"flight ended: {term}; coverage {m.get('coverage', math.nan):.3f}, SM {m.get('safety_sm', math.nan):.3f}, "
-          f"CM {m.get('centering_cm', math.nan):.3f}; hold {'confirmed' if flight.hold_confirmed else 'NOT confirmed'}; "
+          f"CM {m.get('centering_cm', math.nan):.3f}; "
+          f"hold {'confirmed' if flight.hold_confirmed else 'NOT confirmed'}; "
           f"wrote {flight.run_file}, {flight.tlog}, {flight.summary_file}")
     if not flight.hold_confirmed:
         return 4

@@ -53,6 +53,7 @@ class SafetyConfig:
         check_positive("safety min_altitude", self.min_altitude, allow_zero=True)
 
     def resolved(self, standoff: float, working_margin: float) -> "SafetyConfig":
+        """The config with its defaults that depend on the task filled in (box margin, clearance [m])."""
         return SafetyConfig(working_margin if self.box_margin is None else self.box_margin,
                             0.5 * standoff if self.min_clearance is None else self.min_clearance,
                             self.max_speed, self.min_altitude, self.state_timeout, self.link_timeout,
@@ -74,6 +75,7 @@ class Geofence:
         self.last_clearance = math.inf
 
     def reset(self) -> None:
+        """Start a new flight (forget the proximity queries' warm start)."""
         self.proximity.reset()
 
     def check(self, position: np.ndarray, velocity_world: np.ndarray, point: np.ndarray | None = None) -> str | None:

@@ -78,6 +78,7 @@ class SensorNoise:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, Any]) -> "SensorNoise":
+        """The noise settings from a JSON object (unknown keys are an error)."""
         check_unknown_options("noise", data.keys(), ("accel", "gyro", "mag", "baro", "gps_pos", "gps_vel", "seed"))
         return cls(**dict(data))
 
@@ -136,6 +137,7 @@ class HilVehicle:
 
     @property
     def time_usec(self) -> int:
+        """Simulated time [us] since the start, the timestamp of the HIL messages."""
         return int(round(self.steps * self.dt * 1e6))
 
     def apply(self, controls: Sequence[float]) -> None:
@@ -170,6 +172,7 @@ class HilVehicle:
         return p, q, v, quat_wxyz_to_matrix(q)
 
     def sensor_message(self, mav: Any) -> Any:
+        """HIL_SENSOR of the present state: IMU, magnetometer and barometer in PX4's frames, with noise."""
         n = self.config.noise
         rng = self.rng
         p, q, v, R = self._ned()
@@ -191,6 +194,7 @@ class HilVehicle:
                                      float(pressure), 0.0, float(alt), 15.0 - 0.0065 * alt, HIL_SENSOR_ALL, 0)
 
     def gps_message(self, mav: Any) -> Any:
+        """HIL_GPS of the present state (position and velocity, with noise)."""
         n = self.config.noise
         p, _, v, _ = self._ned()
         if n.gps_pos:
@@ -200,10 +204,12 @@ class HilVehicle:
         lat, lon, alt = ned_to_geodetic(p, self.config.origin)
         speed = math.hypot(v[0], v[1])
         cog = (math.degrees(math.atan2(v[1], v[0])) % 360.0) if speed > 0.1 else 0.0
-        return mav.hil_gps_encode(self.time_usec, 3, int(round(lat * 1e7)), int(round(lon * 1e7)), int(round(alt * 1e3)),
-                                  100, 100, int(speed * 100), *(int(round(c * 100)) for c in v), int(cog * 100), 10, 0, 0)
+        return mav.hil_gps_encode(self.time_usec, 3, int(round(lat * 1e7)), int(round(lon * 1e7)),
+                                  int(round(alt * 1e3)), 100, 100, int(speed * 100),
+                                  *(int(round(c * 100)) for c in v), int(cog * 100), 10, 0, 0)
 
     def state_message(self, mav: Any) -> Any:
+        """HIL_STATE_QUATERNION of the present state (the true state, for PX4's ground truth)."""
         p, q, v, R = self._ned()
         lat, lon, alt = ned_to_geodetic(p, self.config.origin)
         gyro = F_FRD_FLU @ self.omega
@@ -215,6 +221,7 @@ class HilVehicle:
             *(int(round(a / GRAVITY * 1000)) for a in acc))
 
     def close(self) -> None:
+        """Close the simulator."""
         self.sim.close()
 
 
@@ -248,6 +255,7 @@ class SitlServer:
                 self._cv.notify_all()
 
     def stop(self) -> None:
+        """Ask the loop to end (from another thread); it stops at its next step."""
         self._stop.set()
 
     def _send_sensors(self) -> None:
@@ -282,7 +290,8 @@ class SitlServer:
                 if self._controls is None:           # PX4 not answering yet: free-run
                     self._cv.wait(v.dt / max(speed, 1e-3) if speed else v.dt)
                 else:
-                    ok = self._cv.wait_for(lambda: self._controls[1] != last_seq or self._stop.is_set(),
+                    ok = self._cv.wait_for(lambda last_seq=last_seq: self._controls[1] != last_seq
+                                           or self._stop.is_set(),
                                            self.actuator_timeout)
                     if not ok:
                         break                        # PX4 has gone
@@ -300,6 +309,7 @@ class SitlServer:
         return v.steps
 
     def close(self) -> None:
+        """Close the MAVLink link."""
         self.link.close()
 
 
@@ -332,6 +342,7 @@ def px4_parameters(params: QuadrotorParams, motor_map: Sequence[int] = QUAD_X_MO
 
 
 def main(argv: list[str], prog: str = "wt-inspect sitl") -> int:
+    """``wt-inspect sitl``: be the simulator side of PX4's SITL with the options in ``argv``."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[9:13]))

@@ -58,6 +58,7 @@ class ThrustMap:
 
     @classmethod
     def for_params(cls, params: QuadrotorParams, px4_curve: float | None = None) -> "ThrustMap":
+        """The map of a drone's parameter set (four rotors; ``px4_curve`` if PX4's differs from the motors')."""
         return cls(float(params.max_rotor_thrust), 4, float(params.thrust_curve), px4_curve)
 
     @property
@@ -66,6 +67,7 @@ class ThrustMap:
 
     @property
     def max_total(self) -> float:
+        """Largest collective thrust the rotors give [N]."""
         return self.rotor_max * self.n_rotors
 
     def to_normalised(self, thrust_n: float) -> float:

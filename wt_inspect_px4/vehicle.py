@@ -57,6 +57,7 @@ class VehicleState:
 
     @property
     def yaw(self) -> float:
+        """Heading [rad] of the vehicle, from its quaternion (NED: 0 = north)."""
         w, x, y, z = self.q_wxyz
         return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
 
@@ -194,25 +195,31 @@ class Vehicle:
 
     # ------------------------------------------------------------------ queries
     def state(self) -> VehicleState | None:
+        """The latest state the vehicle reported, or None before the first."""
         with self._lock:
             return self._state
 
     @property
     def custom_mode(self) -> int:
+        """PX4's custom mode from the latest HEARTBEAT."""
         return self._hb.custom_mode
 
     @property
     def in_offboard(self) -> bool:
+        """Whether the latest HEARTBEAT shows OFFBOARD mode."""
         return px4_main_mode(self._hb.custom_mode) == px4_main_mode(OFFBOARD_MODE) and self._hb.received > 0
 
     @property
     def armed(self) -> bool:
+        """Whether the latest HEARTBEAT shows the vehicle armed."""
         return self._hb.armed
 
     def heartbeat_age(self) -> float:
+        """Seconds since the latest HEARTBEAT (infinite before the first)."""
         return math.inf if self._hb.received == 0 else time.monotonic() - self._hb.received
 
     def wait_for(self, what: str, predicate: Any, timeout: float) -> None:
+        """Wait until ``predicate()`` holds; a VehicleError naming ``what`` after ``timeout`` [s]."""
         deadline = time.monotonic() + timeout
         while not predicate():
             if time.monotonic() > deadline:
@@ -260,11 +267,13 @@ class Vehicle:
                         return
                     if result == mavlink.MAV_RESULT_IN_PROGRESS:
                         continue
-                    rname = mavlink.enums["MAV_RESULT"][result].name if result in mavlink.enums["MAV_RESULT"] else result
+                    results = mavlink.enums["MAV_RESULT"]
+                    rname = results[result].name if result in results else result
                     raise VehicleError(f"{name} refused by the vehicle: {rname}")
         raise VehicleError(f"{name}: no COMMAND_ACK within {timeout:g} s")
 
     def arm(self, timeout: float = 2.0) -> None:
+        """Arm the vehicle, then wait for the HEARTBEAT to show it armed."""
         self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, timeout=timeout)
         self.wait_for("armed HEARTBEAT", lambda: self.armed, timeout)
 
@@ -307,6 +316,7 @@ class Vehicle:
         self._streaming.set()
 
     def set_fallback(self, setpoint: Setpoint) -> None:
+        """The set-point streamed once the flight is aborted (the hold set-point)."""
         with self._lock:
             self._fallback = setpoint
 
@@ -332,6 +342,7 @@ class Vehicle:
 
     @property
     def abort_reason(self) -> str | None:
+        """Why the safety layer aborted the flight, or None while it has not."""
         return self._abort_reason
 
     def hold(self, hover_thrust: float, timeout: float = 5.0) -> bool:
@@ -379,6 +390,7 @@ class Vehicle:
             time.sleep(period / 4)
 
     def close(self) -> None:
+        """Stop the set-point stream and close the link."""
         self._stop.set()
         self._streamer.join(timeout=1.0)
         self.link.close()

@@ -125,6 +125,7 @@ def run_bench(spacing: float = 0.02, repeats: int = 2, seed: int = 0) -> dict:
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench coverage") -> int:
+    """``wt-inspect bench coverage``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--spacing", type=float, default=0.02, help="sweep spacing [m] (0.007 = 0.7 m/s at 100 Hz)")
     ap.add_argument("--repeats", type=int, default=2)

@@ -23,6 +23,7 @@ from .timing_reference import raw_pybullet_rate, rss_mb
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
+    """``wt-inspect bench env``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=20000, help="steps per repeat (default 20000)")
     ap.add_argument("--repeats", type=int, default=5, help="timed blocks (default 5)")
@@ -67,7 +68,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench env") -> int:
     env.close()
     med = statistics.median(rates)
     out = {"task": args.task, "obs_mode": args.obs_mode,
-           "camera_resolution": None if args.obs_mode == "state" else [w, h], "steps_per_s": med, "realtime_factor": med * env.dt,
+           "camera_resolution": None if args.obs_mode == "state" else [w, h], "steps_per_s": med,
+           "realtime_factor": med * env.dt,
            "steps_per_s_min": min(rates), "steps_per_s_max": max(rates), "steps": total, "resets": resets,
            "ctrl_hz": env.config.ctrl_hz, "physics_hz": env.config.physics_hz, "camera_hz": env.config.camera_hz,
            "rss_start_mb": rss0, "rss_end_mb": rss1, "rss_growth_mb": rss1 - rss0,

@@ -64,6 +64,7 @@ def measure_make_close(cycles: int, task: str = "surface", warmup: int = 3,
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench leak") -> int:
+    """``wt-inspect bench leak``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--make-close", type=int, default=300, metavar="N", help="measured cycles (default 300)")
     ap.add_argument("--warmup", type=int, default=3, help="unmeasured cycles first (default 3)")
@@ -81,7 +82,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench leak") -> int:
     if args.json:
         print(json.dumps(out))
     else:
-        print(f"make/reset/step/close x {out['cycles']} ({args.task} task, {out['seconds_per_cycle']:.2f} s per cycle): "
+        print(f"make/reset/step/close x {out['cycles']} ({args.task} task, "
+              f"{out['seconds_per_cycle']:.2f} s per cycle): "
               f"RSS {out['rss_start_mb']:.1f} MB -> {out['rss_end_mb']:.1f} MB ({out['rss_growth_mb']:+.1f} MB, "
               f"max {out['rss_max_mb']:.1f}); slope {out['slope_kb_per_cycle']:+.1f} kB per cycle")
     return 0

@@ -92,6 +92,7 @@ def run_bench(controller: str = "vtnmpc-plus", wind: float = 4.0, max_time: floa
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench mission") -> int:
+    """``wt-inspect bench mission``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--controller", default="vtnmpc-plus", help="registered controller (default vtnmpc-plus)")
     ap.add_argument("--wind", type=float, default=4.0, help="mean gust speed [m/s] (default 4)")

@@ -80,6 +80,7 @@ def run_bench(repeats: int = 7, spec: TurbineSpec | None = None, config: Planner
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench planner") -> int:
+    """``wt-inspect bench planner``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--repeats", type=int, default=7, help="timed repeats after one warm-up (7)")

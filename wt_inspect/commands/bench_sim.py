@@ -127,6 +127,7 @@ def run_bench(preset: str = "matrice100", wind: str = "gust", mean_speed: float 
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench sim") -> int:
+    """``wt-inspect bench sim``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--json", action="store_true", help="print one JSON object")
     ap.add_argument("--preset", default="matrice100", choices=sorted(PRESETS))
@@ -154,7 +155,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench sim") -> int:
         print(json.dumps(out))
         return 0
     print(f"simulator real-time factor, {args.preset}, wind {out['wind']}, {args.ctrl_hz:g} Hz commands, "
-          f"{args.physics_hz:g} Hz physics + rate loop, {out['sim_seconds']:g} s per repeat (median of {args.repeats}):")
+          f"{args.physics_hz:g} Hz physics + rate loop, {out['sim_seconds']:g} s per repeat "
+          f"(median of {args.repeats}):")
     for name, r in runs.items():
         print(f"  {name:>8}: {r['realtime_factor']:>8.0f}x real time (min {r['realtime_factor_min']:.0f}x, max "
               f"{r['realtime_factor_max']:.0f}x); ratio to raw PyBullet {r['ratio_to_raw_pybullet']:.3f}")

@@ -34,7 +34,8 @@ measured, not assumed. The names resolved through the registry (``rti_compiled``
 The ``rti_*`` solver variants built here (``rti_ahead``, ``rti_hpipm``, ...) compare QP paths on
 the VT-NMPC OCP without the constraint. ``vtnmpc_plus_filter`` is VT-NMPC+ flown through the
 safety filter (:mod:`controllers.safety_filter`); its extra row is the filter's own time per step,
-beside the reference and the VT-NMPC+ step of the same run. The compile time of the QP-data library is measured separately, into a
+beside the reference and the VT-NMPC+ step of the same run. The compile time of the QP-data library
+is measured separately, into a
 fresh temporary cache so that it is a real compile.
 
 ``--acados-python PATH`` (the Python of a virtual environment with acados) adds the comparison
@@ -181,7 +182,8 @@ def run_benchmark(steps: int = 500, warmup: int = 20,
         factory = SOLVERS[name][1]()
         built: dict[str, float] = {}
 
-        def timed_factory(env: Any, factory: Callable[[Any], Any] = factory) -> Any:
+        def timed_factory(env: Any, factory: Callable[[Any], Any] = factory,
+                          built: dict[str, float] = built) -> Any:
             t0 = time.perf_counter()
             policy = factory(env)
             built["setup_s"] = time.perf_counter() - t0
@@ -215,11 +217,13 @@ def run_benchmark(steps: int = 500, warmup: int = 20,
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect bench solver") -> int:
+    """``wt-inspect bench solver``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     parser = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--steps", type=int, default=500, help="timed steps per solver (default 500)")
     parser.add_argument("--warmup", type=int, default=20, help="untimed first steps (default 20)")
-    parser.add_argument("--solvers", default="rti_compiled,rti_no_clearance,rti_ahead,rti_hpipm,rti_hpipm_ahead,rti_predict,"
+    parser.add_argument("--solvers", default="rti_compiled,rti_no_clearance,rti_ahead,rti_hpipm,rti_hpipm_ahead,"
+                        "rti_predict,"
                         "rti_uncompiled,ipopt,vtnmpc_plus,vtnmpc_plus_no_clearance,nmpc,nmpc_no_clearance,pampc,"
                         "vtnmpc_plus_filter",
                         help="comma-separated subset of " + ", ".join(SOLVERS))

@@ -171,7 +171,7 @@ def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats
     raw = raw_pybullet_rate(probe.params, probe.config.ctrl_hz, probe.config.physics_hz,
                             obstacle=probe.mission.turbines[0].mesh)
     probe.close()
-    for key, entry in out.items():
+    for entry in out.values():
         entry["ratio_to_single"] = entry["steps_per_s"] / single["steps_per_s"]
         entry["ratio_to_raw_pybullet"] = entry["steps_per_s"] / raw
     out["reference"] = {"raw_pybullet_steps_per_s": raw, "task": task, "options": options}
@@ -187,6 +187,7 @@ def run_bench(counts: list[int], task: str = "full", steps: int = 20000, repeats
 
 
 def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
+    """``wt-inspect bench vecenv``: parse ``argv``, run the benchmark and print it; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--num-envs", default="1,8,32,128", help="comma-separated drone counts (default 1,8,32,128)")
     ap.add_argument("--task", default="full", choices=sorted(ENV_IDS))
@@ -219,7 +220,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
     print(f"vector env, task {args.task}: aggregate env steps/s (median of {args.repeats} x {args.steps}); "
           f"raw PyBullet reference {raw:,.0f} steps/s")
     peer = args.crazyflow_python is not None
-    print(f"{'N':>5} {'steps/s':>10} {'x real time':>11} {'x single':>9} {'x raw':>7} {'MB/drone':>9} {'RSS growth':>11}"
+    print(f"{'N':>5} {'steps/s':>10} {'x real time':>11} {'x single':>9} {'x raw':>7} {'MB/drone':>9} "
+          f"{'RSS growth':>11}"
           + (f" {'crazyflow':>10} {'x cf':>6}" if peer else ""))
     for key, e in out.items():
         if key in ("reference", "memory"):
@@ -227,7 +229,8 @@ def main(argv: list[str], prog: str = "wt-inspect bench vecenv") -> int:
         label = "1*" if key == "1" else key
         print(f"{label:>5} {e['steps_per_s']:>10,.0f} {e['realtime_factor']:>11.1f} {e['ratio_to_single']:>9.2f} "
               f"{e['ratio_to_raw_pybullet']:>7.3f} {e['memory_per_drone_mb']:>9.2f} {e['rss_growth_mb']:>+10.1f}M"
-              + (f" {e.get('crazyflow_steps_per_s', float('nan')):>10,.0f} {e.get('ratio_to_crazyflow', float('nan')):>6.2f}"
+              + (f" {e.get('crazyflow_steps_per_s', float('nan')):>10,.0f} "
+                 f"{e.get('ratio_to_crazyflow', float('nan')):>6.2f}"
                  if peer else ""))
     print("(* N = 1 is the single WindTurbineInspectionEnv"
           + ("; crazyflow: Sim(n_worlds=N), first-principles dynamics, body-rate control at 400 Hz, stepped every 10 ms"

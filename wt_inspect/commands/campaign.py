@@ -421,7 +421,8 @@ def summarise(rows: Sequence[Mapping[str, Any]], d_min: float | None = None) -> 
             "rss_slope_after_warmup_mb_per_episode": max(late) if late else math.nan,
             "start_redraws": sum(int(r.get("start_redraws", 0) or 0) for r in rows),
             "wall_time_per_episode_s": float(np.mean(wall)) if wall else math.nan,
-            "terminations": {t: sum(r["termination"] == t for r in rows) for t in sorted({r["termination"] for r in rows})},
+            "terminations": {t: sum(r["termination"] == t for r in rows)
+                             for t in sorted({r["termination"] for r in rows})},
             **({"filter": {k: distribution([r.get(k, math.nan) for r in rows]) for k in FILTER_FIELDS}}
                if any(k in r for r in rows for k in FILTER_FIELDS) else {}),
             "distribution": {col: distribution([r[col] for r in rows]) for col, *_ in METRICS}}
@@ -448,7 +449,8 @@ def failures(row: Mapping[str, Any], d_min: float) -> list[str]:
     if not row["exception"] and not row["crashed"] and not row["mission_complete"]:
         out.append("not completed" + (f" ({row['termination']})" if row["termination"] else ""))
     if _f(row.get("stalls", math.nan)) > 0:
-        out.append(f"reference stalled {int(_f(row['stalls']))}x ({_f(row.get('skipped_path_m', math.nan)):.0f} m skipped)")
+        out.append(f"reference stalled {int(_f(row['stalls']))}x "
+                   f"({_f(row.get('skipped_path_m', math.nan)):.0f} m skipped)")
     return out
 
 
@@ -501,7 +503,8 @@ def _fmt(v: Any, scale: float = 1.0, digits: int = 2) -> str:
 def _conditions(r: Mapping[str, Any]) -> str:
     kind = r["turbine"] if r["turbine"] != "nrel-5mw-scaled" else f"nrel-5mw x{_f(r['turbine_scale']):.2f}"
     return (f"{kind} {_f(r['tower_height']):.0f}/{_f(r['blade_length']):.0f} m, az {_f(r['rotor_azimuth_deg']):.0f}, "
-            f"wind {_f(r['wind']):.1f} m/s @ {_f(r['wind_direction_deg']):.0f} deg, start {_f(r['start_offset_m']):.1f} m"
+            f"wind {_f(r['wind']):.1f} m/s @ {_f(r['wind_direction_deg']):.0f} deg, "
+            f"start {_f(r['start_offset_m']):.1f} m"
             f", mass x{_fmt(r.get('mass_factor'))}")
 
 
@@ -519,13 +522,15 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
                   "resume).", ""]
     kinds = ", ".join(f"{k} {100 * p:.0f} %" for k, p in TURBINE_KINDS.items())
     only = f"; only episode(s) {', '.join(map(str, cfg.only))} of {cfg.episodes}" if cfg.only else ""
+    airframe = ("on (mass, inertia, drag, thrust, torque, motor lag; no noise or latency)"
+                if cfg.airframe_randomization else "off")
     lines += [
         f"Task `{cfg.task}`, master seed {cfg.seed}{only}; turbines: {kinds} (generated: tower "
         f"{SIZE_RANGES['tower_height']} m, cuboid blades {SIZE_RANGES['blade_length']} x "
         f"{SIZE_RANGES['blade_width']} m; scaled NREL 5-MW: x{NREL_SCALE_RANGE[0]:g}-{NREL_SCALE_RANGE[1]:g}), "
         f"rotor azimuth [0, 120) deg with the planner's rotor turns; Dryden wind, mean [0, {cfg.max_wind:g}] m/s from "
         f"any horizontal direction; starts up to {cfg.max_offset:g} m off the stand-off pose; airframe domain "
-        f"randomisation {'on (mass, inertia, drag, thrust, torque, motor lag; no noise or latency)' if cfg.airframe_randomization else 'off'}; "
+        f"randomisation {airframe}; "
         + (f"**episodes capped at {cfg.max_time:g} simulated s** (not whole missions)." if cfg.max_time
            else "every episode flown to the mission's end or its time limit."), "",
         "| measure | value | goal |", "|---|---:|---|",
@@ -897,6 +902,7 @@ def _comparison_figure(names: Sequence[str], rows: Mapping[str, Mapping[int, Map
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect campaign`` (defaults from :class:`CampaignConfig`)."""
     d = CampaignConfig()
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=d.episodes, help=f"(default {d.episodes})")
@@ -929,6 +935,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect campaign") -> int:
+    """``wt-inspect campaign``: run (or resume) the campaign given by ``argv``; returns the exit code."""
     with interrupts_raise():   # SIGTERM = Ctrl-C from the start, whatever --jobs
         return _main(argv, prog)
 
@@ -974,7 +981,8 @@ def _main(argv: list[str], prog: str) -> int:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt as exc:
-        print(f"\n{prog}: {interrupted_message(exc, args.out, 'episodes', 'results.md, episodes.csv and campaign.json')}",
+        print(f"\n{prog}: "
+              f"{interrupted_message(exc, args.out, 'episodes', 'results.md, episodes.csv and campaign.json')}",
               file=sys.stderr)
         return EXIT_INTERRUPTED
     if len(set(controllers)) > 1:

@@ -252,15 +252,18 @@ class Step:
         self.reset()
 
     def reset(self):
+        """Forget the previous episode (the next step starts cold)."""
         self.started, self.last_q, self.nxy = False, None, None
 
     def set_plan(self, xs, us):
+        """Put the plan (xs, us) into the solver as its iterate."""
         for k in range(self.N + 1):
             self.solver.set(k, "x", np.ascontiguousarray(xs[k], float))
             if k < self.N:
                 self.solver.set(k, "u", np.ascontiguousarray(us[k], float))
 
     def rti(self, shift, x0, params):
+        """One RTI step from ``x0`` with ``params`` (``shift``: shift the plan first); returns acados' status."""
         d = self.data
         d[0] = 1.0 if shift else 0.0
         d[1:1 + NX] = x0
@@ -296,6 +299,8 @@ class Step:
 
 
 def replay(solver, spec, observations):
+    """Step the acados solver through the recorded observations; per step its action, status, time
+    [ms] and QP iterations."""
     step = Step(solver, spec)
     keys = list(observations)
     n = len(observations[keys[0]])
@@ -333,6 +338,7 @@ def probe(solver, spec, xs, us, params, x0):
 
 
 def main(argv):
+    """Answer the JSON request in the file ``argv[1]`` (build, replay or probe) with one JSON object."""
     with open(argv[1]) as f:
         req = json.load(f)
     t0 = time.perf_counter()

@@ -19,6 +19,7 @@ import time
 
 
 def measure(n: int, steps: int, repeats: int) -> float:
+    """Median aggregate drone-steps per second of ``n`` crazyflow drones over ``repeats`` timed blocks."""
     import numpy as np
     from crazyflow.sim import Sim
 
@@ -43,6 +44,7 @@ def measure(n: int, steps: int, repeats: int) -> float:
 
 
 def main() -> None:
+    """Measure each drone count of the command line and print the JSON object (see the module)."""
     counts = [int(x) for x in sys.argv[1].split(",")]
     steps, repeats = int(sys.argv[2]), int(sys.argv[3])
     print(json.dumps({str(n): measure(n, max(20, steps // n), repeats) for n in counts}))

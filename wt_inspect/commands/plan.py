@@ -3,7 +3,8 @@
 Writes ``DIR/turbine.stl`` (blades, hub and tower as planned: phase-1 rotor position),
 ``DIR/path.csv`` (``x,y,z,nx,ny,nz,surface,phase,s``: inspection point, outward normal, surface id
 or -1 on transitions, phase 1 or 2, arc length of the inspection point) and ``DIR/plan.png``
-(3-D view per phase; ``--figure-format pdf|svg`` for a vector figure instead), each atomically, and prints a summary (``--json``: one JSON object).
+(3-D view per phase; ``--figure-format pdf|svg`` for a vector figure instead), each atomically, and
+prints a summary (``--json``: one JSON object).
 """
 from __future__ import annotations
 
@@ -37,6 +38,7 @@ _PLAN_ARGS = {
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect plan`` (defaults from TurbineSpec and PlannerConfig)."""
     d = TurbineSpec()
     c = PlannerConfig()
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
@@ -84,6 +86,7 @@ def _picked(args: argparse.Namespace, table: dict[str, str]) -> dict:
 
 
 def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
+    """``wt-inspect plan``: plan the path given by ``argv``, write its files and print a summary."""
     args = build_parser(prog).parse_args(argv)
     out = Path(args.out)
     try:
@@ -132,8 +135,8 @@ def main(argv: list[str], prog: str = "wt-inspect plan") -> int:
     if args.json:
         print(json.dumps(summary))
         return 0
-    order = " ".join(f"{t.surface}{'^' if t.entry == 'root' else 'v'}" + (" |" if t.phase == 1 and i + 1 < len(plan.tour)
-                                                                        and plan.tour[i + 1].phase == 2 else "")
+    order = " ".join(f"{t.surface}{'^' if t.entry == 'root' else 'v'}"
+                     + (" |" if t.phase == 1 and i + 1 < len(plan.tour) and plan.tour[i + 1].phase == 2 else "")
                      for i, t in enumerate(plan.tour))
     positions = "; ".join(f"{len(rp.surfaces)} at rotor position {rp.phase} (turned {rp.turn_deg:g} deg)"
                           for rp in plan.rotor_positions)

@@ -70,6 +70,7 @@ def _camera(text: str | None) -> dict[str, Any]:
 
 
 def main(argv: list[str], prog: str = "wt-inspect rescore") -> int:
+    """``wt-inspect rescore``: re-score the recorded runs named in ``argv``; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.split("\n\n")[0])
     ap.add_argument("runs", nargs="+", help="run files (.npz) or directories holding them (DIR or DIR/runs)")
     ap.add_argument("--camera", default=None, help="JSON object of CameraConfig fields to change, e.g. "
@@ -93,7 +94,8 @@ def main(argv: list[str], prog: str = "wt-inspect rescore") -> int:
             rows.append({"run_file": f.name, "controller": s.controller, "wind": s.wind, "seed": s.seed,
                          "coverage_flown": float(result.metrics.get("coverage", float("nan"))),
                          "coverage_rescored": score["coverage"], "area_coverage_rescored": score["area_coverage"]})
-            print(f"{f.name}: {s.controller}, wind {s.wind:g}: coverage {100 * rows[-1]['coverage_flown']:.1f} % flown, "
+            print(f"{f.name}: {s.controller}, wind {s.wind:g}: "
+                  f"coverage {100 * rows[-1]['coverage_flown']:.1f} % flown, "
                   f"{100 * score['coverage']:.1f} % re-scored", flush=True)
     except (ValueError, OSError) as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

@@ -111,10 +111,12 @@ class TuneConfig:
 
     @property
     def storage_url(self) -> str:
+        """The Optuna storage: ``storage`` if given, else ``OUT/study.db``."""
         return self.storage or f"sqlite:///{Path(self.out).resolve() / 'study.db'}"
 
     @property
     def study_name(self) -> str:
+        """The Optuna study name: ``study`` if given, else controller-scenario."""
         return self.study or f"{self.controller}-{self.scenario}"
 
 
@@ -188,6 +190,7 @@ class Objective:
         self.trial_dir = Path(cfg.out) / "trials" / safe   # trial numbers are per study
 
     def __call__(self, trial: optuna.Trial) -> float:
+        """Fly the trial's weights (the blocks' multipliers drawn by Optuna); returns the mean score."""
         cfg = self.cfg
         lo, hi = 1.0 / cfg.spread, cfg.spread
         mult = {k: trial.suggest_float(k, lo, hi, log=True) for k in self.blocks}
@@ -340,6 +343,7 @@ def _figure(cfg: TuneConfig, trials: Sequence[Any], path: Path) -> None:
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect tune`` (its epilog states the objective)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="objective: " + OBJECTIVE)
@@ -362,6 +366,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str], prog: str = "wt-inspect tune") -> int:
+    """``wt-inspect tune``: run (or resume) the study given by ``argv``; returns the exit code."""
     args = build_parser(prog).parse_args(argv)
     try:
         cfg = TuneConfig(controller=args.controller, scenario=args.scenario, trials=args.trials, out=args.out,

@@ -121,6 +121,7 @@ class Evaluation:
     files: dict[str, Any] = field(default_factory=dict)
 
     def rows(self) -> list[dict[str, Any]]:
+        """One results row per run."""
         return [r.row() for r in self.results]
 
 
@@ -179,7 +180,8 @@ def sweep_specs(scenario: str, controllers: Sequence[str], winds: Sequence[float
                       record_every=record_every, custom=custom, trust_model=trust_model)
 
 
-def run_evaluation(scenario: str = "paper", controllers: Sequence[str] | Mapping[str, Any] = ("vtnmpc", "nmpc", "pampc"),
+def run_evaluation(scenario: str = "paper",
+                   controllers: Sequence[str] | Mapping[str, Any] = ("vtnmpc", "nmpc", "pampc"),
                    winds: Sequence[float] | None = None, seeds: Sequence[int] = (0,), *,
                    out: str | os.PathLike, backend: str = "local", jobs: int | None = None,
                    address: str | None = None, max_time: float | None = None, wind_type: str = "gust",

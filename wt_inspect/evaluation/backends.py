@@ -64,6 +64,7 @@ class ProgressBoard:
             self.overall = tqdm(total=total, desc=desc, unit="run", position=0, dynamic_ncols=True)
 
     def report(self, key: str, label: str, t: float, total: float) -> None:
+        """Show run ``key`` (``label``) at ``t`` of ``total`` simulated seconds."""
         if not self.enabled:
             return
         with self._lock:
@@ -79,6 +80,7 @@ class ProgressBoard:
             bar.refresh()
 
     def finish(self, key: str, note: str = "") -> None:
+        """Mark run ``key`` finished, with an optional ``note``."""
         if not self.enabled:
             return
         with self._lock:
@@ -91,6 +93,7 @@ class ProgressBoard:
                 self.overall.set_postfix_str(note, refresh=True)
 
     def close(self) -> None:
+        """Close every progress bar."""
         if not self.enabled:
             return
         with self._lock:

@@ -49,6 +49,7 @@ def _list(kind: type, name: str):
 
 
 def build_parser(prog: str) -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect evaluate`` (its epilog lists the scenarios)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="scenarios:\n" + "\n".join(f"  {k:<8} {s.description} (winds "
@@ -119,6 +120,7 @@ def resolve(args: argparse.Namespace) -> EvaluateConfig:
 
 
 def main(argv: list[str], prog: str = "wt-inspect evaluate") -> int:
+    """``wt-inspect evaluate``: run the evaluation given by ``argv``; returns the exit code."""
     with interrupts_raise():   # SIGTERM = Ctrl-C from here on, whatever --jobs
         try:
             return _main(argv, prog)

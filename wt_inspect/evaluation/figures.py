@@ -67,6 +67,7 @@ def _equal_axes(ax, pts: np.ndarray) -> None:
 
 
 def trajectories(runs: Sequence[RunResult], path: Path, title: str) -> Path:
+    """3-D view of the runs' flown paths around the blades, one panel per phase; saved to ``path``."""
     tri = runs[0].arrays["blade_triangles"]
     n_phase = len(tri)
     fig = plt.figure(figsize=(6.5 * n_phase, 6.5))
@@ -100,6 +101,8 @@ def trajectories(runs: Sequence[RunResult], path: Path, title: str) -> Path:
 
 
 def distance(runs: Sequence[RunResult], path: Path, title: str) -> Path:
+    """The runs' distance to the inspection point (and clearance, where recorded) over time; saved to
+    ``path``."""
     r0 = runs[0]
     d_ref, margin = r0.d_ref, r0.safety_margin
     with_clearance = [r for r in runs if "clearance" in r.arrays]
@@ -216,6 +219,7 @@ def _window_min(values: np.ndarray) -> np.ndarray:
 
 
 def centering(runs: Sequence[RunResult], path: Path, title: str) -> Path:
+    """The runs' heading function h (1 = point centred in the image) over time; saved to ``path``."""
     fig, ax = plt.subplots(figsize=(11, 4))
     lo = 1.0
     for i, r in enumerate(runs):

@@ -57,6 +57,7 @@ def _fmt_csv(v: Any) -> str:
 
 
 def csv_text(results: Iterable[RunResult]) -> str:
+    """The runs as results.csv text (columns :data:`CSV_COLUMNS`, one row per run)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(CSV_COLUMNS)
@@ -227,6 +228,7 @@ def _frames_note(results: Sequence[RunResult]) -> str:
 
 
 def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
+    """results.md of an evaluation: the metrics of every run, then how the numbers were made."""
     sc = get_scenario(ctx.scenario)
     rows = [r.row() for r in results]
     lines = [f"# Evaluation: scenario `{sc.name}`", "",
@@ -243,7 +245,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     winds = sorted({r["wind"] for r in rows})
     # a "paper" column only beside controllers the paper reports on in this scenario
     # (and only in the paper's wind: its numbers are for the gust, not for Dryden turbulence)
-    paper_cols = {c: ctx.wind_type == "gust" and any(paper_numbers(sc.name, w, c) for w in PAPER_RESULTS.get(sc.name, {}))
+    paper_cols = {c: ctx.wind_type == "gust"
+                  and any(paper_numbers(sc.name, w, c) for w in PAPER_RESULTS.get(sc.name, {}))
                   for c in controllers}
     for wind in winds:
         at = [r for r in rows if r["wind"] == wind]
@@ -312,7 +315,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                if any(paper_cols.values()) else
                "- No paper columns: the paper has no numbers for this scenario and wind. Solve times are the "
                "policy's own time per control step on the machine below."),
-              "- Metrics (wt_inspect_env.task.metrics): coverage = share of the mission's blade triangles seen at least "
+              "- Metrics (wt_inspect_env.task.metrics): coverage = share of the mission's blade triangles "
+              "seen at least "
               f"once ({_frames_note(results)}); SM = share of inspecting samples with "
               "|d - d_ref| below the margin, d the horizontal distance to the inspection point; CM = mean heading "
               "function h of the gimbal camera (the horizontal part of the body x axis, as the authors' code "
@@ -335,7 +339,8 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
               *(["- Safety filter (controllers.safety_filter, a `+filter` controller): interventions = share of "
                  "control steps whose action it changed (by more than 0.001 of the normalised range); mean "
                  "correction = mean max-norm change of the normalised action; fallbacks = steps whose QP failed "
-                 "and the filter's backup plan flew; its time per step, besides the policy's own."] if filtered else []),
+                 "and the filter's backup plan flew; its time per step, besides the policy's own."]
+                if filtered else []),
               f"- Hardware: {hardware()}.",
               f"- Backend: {ctx.backend}, {ctx.jobs} parallel jobs; wall time of this invocation "
               f"{ctx.wall_time_s:.0f} s ({ctx.n_ran} runs executed, {ctx.n_resumed} resumed from earlier run files)."]
@@ -346,5 +351,6 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
 
 
 def write_markdown(results: Sequence[RunResult], ctx: ReportContext, path: str | Path) -> Path:
+    """Write :func:`markdown` to ``path`` atomically and return the path."""
     write_text_atomic(path, markdown(results, ctx))
     return Path(path)

@@ -153,10 +153,12 @@ class RunSpec:
 
     @property
     def filename(self) -> str:
+        """The run file's name: scenario, controller, wind, seed and the spec's key."""
         ctrl = "".join(c if c.isalnum() or c in "-_" else "-" for c in self.controller)[:40]
         return f"{self.scenario}_{ctrl}_w{self.wind:g}_s{self.seed}_{self.key}.npz"
 
     def to_dict(self) -> dict[str, Any]:
+        """The spec as plain JSON-able data (stored in the run file)."""
         return asdict(self) | {"env_options": dict(self.env_options)}
 
 
@@ -218,6 +220,7 @@ class RunResult:
         return row
 
     def meta(self) -> dict[str, Any]:
+        """What the run file stores beside the arrays: spec, metrics, termination and timings."""
         return {"format": FORMAT, "spec": self.spec.to_dict(), "metrics": self.metrics,
                 "termination": self.termination, "mission_complete": self.mission_complete,
                 "steps": self.steps, "sim_time_s": self.sim_time_s, "wall_time_s": self.wall_time_s,

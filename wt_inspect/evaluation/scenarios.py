@@ -210,5 +210,6 @@ class SweepSpec:
     overrides: Mapping[str, Any] = field(default_factory=dict)
 
     def options(self, wind: float) -> dict[str, Any]:
+        """The env options of the sweep at mean wind ``wind`` [m/s]."""
         return env_options(self.scenario, wind, wind_type=self.wind_type, wind_options=self.wind_options,
                            turbine=self.turbine, drone=self.drone, overrides=self.overrides)

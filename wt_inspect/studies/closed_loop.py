@@ -47,9 +47,11 @@ class SurfacePass:
             raise ValueError("direction must be orthogonal to the normal")
 
     def point(self, t: float) -> np.ndarray:
+        """The inspection point at time ``t`` [s] (moving along the pass)."""
         return np.asarray(self.start) + self.speed * t * np.asarray(self.direction)
 
     def velocity(self, t: float = 0.0) -> np.ndarray:
+        """The inspection point's velocity [m/s] (constant along the pass)."""
         return self.speed * np.asarray(self.direction, dtype=float)
 
     def ideal_state(self, t: float, d_ref: float) -> np.ndarray:
@@ -83,9 +85,11 @@ class ModelPlant:
 
     @property
     def state(self) -> np.ndarray:
+        """The plant's state (a copy)."""
         return self._state.copy()
 
     def reset(self, state: np.ndarray) -> np.ndarray:
+        """Start again from ``state`` at t = 0; returns the state."""
         self._state = check_array("state", state, (10,)).copy()
         self.t = 0.0
         return self.state
@@ -100,6 +104,7 @@ class ModelPlant:
         return R @ f_body / self.params.mass
 
     def step(self, command: np.ndarray) -> np.ndarray:
+        """Hold ``command`` for one step of the model (drag held over it); returns the new state."""
         a = self.disturbance_accel()  # held over the step (drag changes slowly)
         xn = np.asarray(self._F(self._state, command, a)).ravel()
         xn[6:10] /= np.linalg.norm(xn[6:10])

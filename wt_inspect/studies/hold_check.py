@@ -62,6 +62,7 @@ def run(seconds: float, holds: tuple[int, ...] = HOLDS) -> dict[int, dict]:
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect study hold-check") -> int:
+    """``wt-inspect study hold-check``: run the check given by ``argv``; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=30.0, help="seconds of flight from the mission start")
     args = ap.parse_args(argv)

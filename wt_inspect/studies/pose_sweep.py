@@ -52,6 +52,7 @@ def _grid(text: str, what: str) -> list[float]:
 
 
 def build_parser(prog: str = "wt-inspect study pose-sweep") -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect study pose-sweep``."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--turbine", default="paper", choices=sorted(TURBINES), help="(default paper)")
     ap.add_argument("--controllers", default="vtnmpc-plus", metavar="A,B,...", help="(default vtnmpc-plus)")
@@ -116,6 +117,8 @@ def shortfalls(r: Mapping[str, Any], d_min: float) -> list[str]:
 
 
 def markdown(rows: Sequence[Mapping[str, Any]], command: str, d_min: float) -> str:
+    """results.md of the sweep: per controller, how many missions meet the targets (``d_min`` [m]), then the
+    coverage by rotor azimuth and facing."""
     from wt_inspect_env import __version__
     lines = [f"# Rotor-pose sweep: {rows[0]['turbine'] if rows else ''}", "",
              f"Whole missions, scenario `{SCENARIO}` (d_ref 7 m), the paper's gust at {WIND:g} m/s, the planner "
@@ -185,6 +188,7 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
 
 
 def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
+    """``wt-inspect study pose-sweep``: run (or resume) the sweep given by ``argv``; returns the exit code."""
     ap = build_parser(prog)
     args = ap.parse_args(argv)
     try:

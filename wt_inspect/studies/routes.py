@@ -32,6 +32,7 @@ ROUTES = {
 
 
 def main(argv: list[str], prog: str = "wt-inspect study routes") -> int:
+    """``wt-inspect study routes``: extract and draw the routes' evaluations (see the module); returns the exit code."""
     argv = list(argv)
     if argv and argv[0] in {"-h", "--help"}:
         print(f"usage: {prog} [--out DIR] (RUNS_ROOT | --from-json | --add RUNS_ROOT LABEL...)\n\n{__doc__}")

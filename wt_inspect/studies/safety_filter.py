@@ -72,9 +72,11 @@ class FlyAt:
         self.target, self.gain, self.damping, self.a_max = target, gain, damping, a_max
 
     def reset(self, seed: int | None = None) -> None:
+        """Nothing to reset: the policy has no state."""
         pass
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The normalised action that accelerates the drone at the target."""
         from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
         u = self.u
         p, q = np.asarray(obs["position"], float), np.asarray(obs["quaternion"], float)
@@ -102,9 +104,11 @@ class RandomActions:
         self.rng = np.random.default_rng(0)
 
     def reset(self, seed: int | None = None) -> None:
+        """Reseed the random actions."""
         self.rng = np.random.default_rng(seed)
 
     def act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """Uniformly random normalised actions."""
         return self.rng.uniform(-1.0, 1.0, 4).astype(np.float32)
 
 
@@ -305,6 +309,7 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def markdown(s: Mapping[str, Any], starts: int, command: str) -> str:
+    """results.md of the study from its summary ``s`` (``starts`` seeded starts, the command)."""
     from wt_inspect.evaluation.report import hardware
     lines = ["# The safety filter against adversarial policies", "",
              f"`{command}`", "",
@@ -327,6 +332,7 @@ def markdown(s: Mapping[str, Any], starts: int, command: str) -> str:
 
 
 def build_parser(prog: str = "wt-inspect study safety-filter") -> argparse.ArgumentParser:
+    """The argument parser of ``wt-inspect study safety-filter``."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--starts", type=int, default=1000, help="seeded recoverable starts (default 1000)")
     ap.add_argument("--out", default="results/safety_filter", help="output folder")
@@ -336,6 +342,7 @@ def build_parser(prog: str = "wt-inspect study safety-filter") -> argparse.Argum
 
 
 def main(argv: list[str], prog: str = "wt-inspect study safety-filter") -> int:
+    """``wt-inspect study safety-filter``: run the study given by ``argv``; returns the exit code."""
     ap = build_parser(prog)
     args = ap.parse_args(argv)
     if args.starts < 1:

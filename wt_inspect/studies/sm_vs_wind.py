@@ -59,6 +59,7 @@ def wind_for(target: float, curve: dict[float, float]) -> float:
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect study sm-vs-wind") -> int:
+    """``wt-inspect study sm-vs-wind``: tabulate SM against the mean wind; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description="SM against the mean wind under the authors' conditions")
     ap.add_argument("--results", default="results", help="the results folder holding paper_faithful/ and "
                     "paper_faithful_wind/ (default: ./results, i.e. run from the checkout's root)")

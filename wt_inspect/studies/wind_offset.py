@@ -54,6 +54,7 @@ def settled_error(name: str, wind: float, drag_factor: float = 1.0, seconds: flo
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect study wind-offset") -> int:
+    """``wt-inspect study wind-offset``: run the study given by ``argv``; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None, help="write the CSV here (default: print it)")
     ap.add_argument("--controllers", default=",".join(CONTROLLERS), help="comma-separated subset of "

@@ -35,6 +35,7 @@ OBS_WIDTH = 24
 
 
 class RefPath(ctypes.Structure):
+    """The reference path's arrays as ``world_core.c`` reads them (mirrors its struct, field by field)."""
     _fields_ = [("n_runs", _I), ("run_start", _P), ("run_count", _P), ("run_length", _P), ("run_offset", _P),
                 ("run_phase", _P), ("tau", _P), ("dtau", _P), ("geom", _P), ("dp_dtau", _P), ("normals", _P),
                 ("hdir", _P), ("total_length", _D), ("speed", _D), ("stop", _D), ("inv_band", _D),
@@ -43,6 +44,7 @@ class RefPath(ctypes.Structure):
 
 
 class RefState(ctypes.Structure):
+    """The moving references' state arrays, one entry per drone (mirrors the C struct)."""
     _fields_ = [(name, _P) for name in ("run", "tau", "time", "hold_elapsed", "holding", "done", "release",
                                         "point", "normal", "velocity", "ideal", "phase", "progress", "s_done",
                                         "waiting", "hold_started", "phase_changed", "s", "speed_factor", "lag",
@@ -51,22 +53,26 @@ class RefState(ctypes.Structure):
 
 
 class Metrics(ctypes.Structure):
+    """The running metrics' accumulators, one entry per drone (mirrors the C struct)."""
     _fields_ = [(name, _P) for name in ("sums", "mins", "maxs", "counts", "t_first", "t_last", "prev", "prev_col")] \
         + [("safety_margin", _D)]
 
 
 class Visibility(ctypes.Structure):
+    """The blade triangles and camera limits of the visibility test (mirrors the C struct)."""
     _fields_ = [("m", _I), ("vertices", _P), ("normals", _P), ("centroids", _P), ("n_dot_c", _P), ("c_sq", _P),
                 ("fov_scale", _D * 3), ("max_range", _D), ("cos_max_incidence", _D), ("incidence_from_axis", _I),
                 ("range_from_vertices", _I)]
 
 
 class RewardWeights(ctypes.Structure):
+    """The default task's reward weights (mirrors the C struct)."""
     _fields_ = [(name, _D) for name in ("coverage", "distance", "centering", "effort", "crash", "distance_scale",
                                         "dt")] + [("n_triangles", _I)]
 
 
 class WorldStep(ctypes.Structure):
+    """Everything one batched world step reads and writes, as addresses (mirrors the C struct)."""
     _fields_ = [("n", _I), ("path", _P), ("ref", _P), ("metrics", _P), ("weights", _P), ("state", _P),
                 ("rates", _P), ("steps", _P), ("dt", _D), ("finite", _P), ("collision", _P), ("n_new", _P),
                 ("n_vis", _P), ("actions", _P), ("hover", _P), ("lo", _P), ("hi", _P), ("pose_limit", _D),

@@ -125,6 +125,7 @@ class QuadrotorParams:
 
     @property
     def inertia_matrix(self) -> np.ndarray:
+        """The (3, 3) inertia matrix [kg m^2] (diagonal)."""
         return np.diag(self.inertia)
 
     @property

@@ -63,6 +63,7 @@ class SimConfig:
 
     @property
     def substeps(self) -> int:
+        """Physics sub-steps per control step."""
         return int(round(self.physics_hz / self.ctrl_hz))
 
 
@@ -86,6 +87,7 @@ class SubstepConstants:
 
     @classmethod
     def of(cls, params: QuadrotorParams, config: SimConfig, mixer: Mixer) -> "SubstepConstants":
+        """The constants of an airframe, simulator configuration and mixer."""
         tau = params.motor_time_constant
         if config.motor_lag and tau > 0:
             r = (1.0 / config.physics_hz) / tau

@@ -90,6 +90,7 @@ class WindField:
 
     @property
     def name(self) -> str:
+        """The field's name in errors and records (its class name here)."""
         return type(self).__name__
 
     def reset(self, seed: Any = None) -> None:
@@ -105,6 +106,7 @@ class WindField:
         raise NotImplementedError
 
     def __call__(self, t: float, positions: Any) -> np.ndarray:
+        """Wind velocity [m/s] (P, 3) at time ``t`` [s] at the (P, 3) ``positions`` [m]."""
         try:
             tf = float(t)
         except (TypeError, ValueError):
@@ -448,6 +450,7 @@ class FunctionWind(WindField):
 
     @property
     def name(self) -> str:
+        """The name given, else the function's own."""
         return self._name
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
@@ -502,6 +505,7 @@ class WindBatch:
                           wc.addr(self._speeds))
 
     def __call__(self, times: np.ndarray, positions: np.ndarray) -> np.ndarray:
+        """Each field's wind velocity [m/s] (n, 3) at its own time and position (one drone per field)."""
         out = np.empty((len(self.fields), 3))
         k = len(self._gusts)
         if k:

@@ -106,6 +106,7 @@ def sample_polyline(poly: np.ndarray, step: float) -> np.ndarray:
 
 
 def polyline_length(poly: np.ndarray) -> float:
+    """Length [m] of the polyline through the rows of ``poly``."""
     return float(np.linalg.norm(np.diff(poly, axis=0), axis=1).sum())
 
 
@@ -158,9 +159,11 @@ class Clearance:
         return np.minimum(d, np.asarray(points, float).reshape(-1, 3)[:, 2] - self.floor)
 
     def is_clear(self, points: np.ndarray) -> bool:
+        """Whether every point keeps the required clearance from the turbine."""
         return bool(np.all(self.distances(points) >= self.required))
 
     def polyline_clear(self, poly: np.ndarray) -> bool:
+        """Whether the polyline keeps the required clearance, checked at samples ``step`` apart."""
         return self.is_clear(sample_polyline(poly, self.step))
 
     def route(self, qa: np.ndarray, qb: np.ndarray) -> np.ndarray:

@@ -81,6 +81,7 @@ class Surface:
 
     @property
     def length(self) -> float:
+        """Length [m] of the surface's centre line (through its nodes)."""
         return float(np.linalg.norm(np.diff(self.nodes, axis=0), axis=1).sum())
 
     @property

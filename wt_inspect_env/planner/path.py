@@ -20,7 +20,8 @@ normal ``n`` and stand-off position ``q`` (``q = p + d_ref * offset_direction(n)
 Resampling is done per piece, uniformly in stand-off arc length with at most ``spacing`` between
 samples; both ends of every piece, the via points of transit routes and the blade-edge corner of
 wraps are samples (never cut), so each surface is inspected exactly from end node to end node and
-the resampled path stays on the clearance-checked route. Surface and wrap pieces interpolate ``p`` (points stay on the blade) and derive ``q``;
+the resampled path stays on the clearance-checked route. Surface and wrap pieces interpolate ``p``
+(points stay on the blade) and derive ``q``;
 transit pieces interpolate ``q`` (the route stays clear) and derive ``p``.
 """
 from __future__ import annotations
@@ -92,6 +93,7 @@ class Piece:
 
     @property
     def standoff_length(self) -> float:
+        """Length [m] of the piece's stand-off path ``q``."""
         return float(np.linalg.norm(np.diff(self.q, axis=0), axis=1).sum())
 
 
@@ -150,6 +152,8 @@ def transit_piece(route: np.ndarray, n0: np.ndarray, n1: np.ndarray, phase: int,
 
 @dataclass
 class SampledPath:
+    """The planned path resampled for flight: per sample the blade point, its normal, the stand-off
+    point, the surface, the phase and the kind of piece."""
     points: np.ndarray
     normals: np.ndarray
     standoff_points: np.ndarray

@@ -112,14 +112,17 @@ class InspectionPlan:
 
     @property
     def n_surfaces(self) -> int:
+        """Number of surfaces the plan inspects."""
         return len(self.surfaces)
 
     @property
     def n_phases(self) -> int:
+        """Number of rotor positions (phases) of the plan."""
         return len(self.rotor_positions)
 
     @property
     def turbine_phase1(self) -> TurbineMesh:
+        """The turbine as it stands at the start (first rotor position)."""
         return self.turbines[0]
 
     @property

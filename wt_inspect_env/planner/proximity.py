@@ -70,6 +70,7 @@ class MeshProximity:
         self.n_triangles = len(tris)
 
     def closest(self, points: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Closest mesh points (P, 3), distances [m] (P,) and outward normals (P, 3) for the (P, 3) ``points``."""
         pts = check_array("points", points, (None, 3))
         P = len(pts)
         _, idx = self._tree.query(pts, k=self._k)
@@ -161,11 +162,13 @@ class TurbineProximity:
         return cls.from_mission(u.mission, phase_starts=u.world.reference.phase_starts, **options)
 
     def reset(self) -> None:
+        """Back to the first rotor position."""
         self.index = 0
         self._checked = None
 
     @property
     def active(self) -> MeshProximity:
+        """The mesh of the active rotor position."""
         return self.phases[self.index]
 
     def update(self, point: Any, progress: float | None = None) -> int:

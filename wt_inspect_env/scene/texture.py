@@ -54,6 +54,7 @@ class SpanTexture:
 
     @property
     def n_bands(self) -> int:
+        """Number of colour bands along the span (at least one)."""
         return max(1, math.ceil(self.radius / self.band_m))
 
     def image(self) -> np.ndarray:

@@ -82,6 +82,7 @@ class PyBulletOccluder:
         self.max_batch = int(getattr(p, "MAX_RAY_INTERSECTION_BATCH_SIZE", 16384)) - 1
 
     def occluded(self, origin: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """For each target, whether a ray from ``origin`` hits something before it (PyBullet ray test)."""
         targets = np.asarray(targets, dtype=float).reshape(-1, 3)
         n = len(targets)
         out = np.zeros(n, dtype=bool)
@@ -144,6 +145,7 @@ class TrimeshOccluder:
         self._hi = tris.max(axis=1)
 
     def occluded(self, origin: np.ndarray, targets: np.ndarray, *, chunk: int = 200_000) -> np.ndarray:
+        """For each target, whether a triangle lies between ``origin`` and it (rays in chunks of ``chunk``)."""
         targets = np.asarray(targets, dtype=float).reshape(-1, 3)
         origin = np.asarray(origin, dtype=float)
         out = np.zeros(len(targets), dtype=bool)
@@ -197,6 +199,7 @@ class TriangleVisibility:
 
     @property
     def n_triangles(self) -> int:
+        """Number of triangles tested."""
         return len(self.vertices)
 
     def set_mesh(self, vertices, normals) -> None:
@@ -307,6 +310,7 @@ class CoverageTracker:
         self._area_seen = 0.0
 
     def reset(self) -> None:
+        """Forget what has been seen (a new episode)."""
         self.counts[:] = 0
         self.n_seen = 0
         self._area_seen = 0.0
@@ -338,14 +342,17 @@ class CoverageTracker:
 
     @property
     def seen(self) -> np.ndarray:
+        """Per triangle, whether it has been seen."""
         return self.counts > 0
 
     @property
     def coverage(self) -> float:
+        """Share of the triangles seen at least once."""
         return self.n_seen / self.n_triangles
 
     @property
     def area_coverage(self) -> float:
+        """Share of the blade area seen at least once (NaN without triangle areas)."""
         if self.areas is None:
             return float("nan")
         return self._area_seen / float(self.areas.sum())

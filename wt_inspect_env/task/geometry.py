@@ -56,6 +56,7 @@ class HorizontalNormal:
         self.value: np.ndarray | None = None
 
     def reset(self) -> None:
+        """Forget the remembered normal (a new episode)."""
         self.value = None
 
     def update(self, normal, position, point) -> np.ndarray:

@@ -35,7 +35,8 @@ class WorldView(Protocol):
     volume_hi: np.ndarray
 
     @property
-    def coverage(self) -> np.ndarray: ...
+    def coverage(self) -> np.ndarray:
+        """(N,) share of the mission's inspected triangles each drone has seen this episode."""
 
 TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 

@@ -196,10 +196,12 @@ class MetricAccumulator:
         self._idx = np.zeros(1, dtype=np.int64)
 
     def reset(self) -> None:
+        """Start a new episode's metrics."""
         self._batch.reset(0)
 
     @property
     def n_samples(self) -> int:
+        """Number of samples recorded so far."""
         return self._batch.n_samples(0)
 
     def add(self, t: float, position, quaternion, point, normal, *, collision: bool = False, n_new: int = 0,
@@ -351,9 +353,11 @@ class BatchedMetrics:
         self._dref = np.array([config.d_ref])
 
     def n_samples(self, i: int) -> int:
+        """Number of samples recorded for drone ``i``."""
         return int(self.counts[i, 0])
 
     def reset(self, i: int) -> None:
+        """Start a new episode's metrics for drone ``i``."""
         self.sums[i] = 0.0
         self.mins[i] = math.inf
         self.maxs[i] = -math.inf

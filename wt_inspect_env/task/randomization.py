@@ -173,6 +173,7 @@ class RandomizationDraw:
 
     @property
     def has_noise(self) -> bool:
+        """Whether any sensor-noise level of the draw is above zero."""
         return any(getattr(self, n) > 0 for n in NOISE_FIELDS)
 
     def to_info(self) -> dict[str, Any]:

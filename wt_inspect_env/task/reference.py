@@ -257,6 +257,7 @@ class InspectionReference:
 
     @property
     def n_phases(self) -> int:
+        """Number of phases (rotor positions) of the path."""
         return len(self._runs)
 
     @property
@@ -446,6 +447,7 @@ class BatchedReference:
 
     @property
     def config(self) -> ReferenceConfig:
+        """The reference's configuration."""
         return self.ref.config
 
     @property
@@ -455,6 +457,7 @@ class BatchedReference:
 
     @property
     def sample(self) -> BatchedSample:
+        """The drones' current reference samples (updated in place)."""
         return self._sample
 
     def reset(self, i: int, start_fraction: float = 0.0) -> None:

@@ -61,6 +61,7 @@ class ActionScaling:
 
     @classmethod
     def from_params(cls, params: QuadrotorParams, **kw) -> "ActionScaling":
+        """The scaling of an airframe (its mass; other fields as keywords)."""
         return cls(mass=params.mass, **kw)
 
     @property
@@ -70,6 +71,7 @@ class ActionScaling:
 
     @property
     def thrust_bounds(self) -> tuple[float, float]:
+        """(lowest, highest) collective thrust [N] an action can command."""
         w = self.hover_thrust
         return self.min_thrust_factor * w, self.max_thrust_factor * w
 
@@ -98,4 +100,5 @@ class ActionScaling:
         return np.clip(2.0 * (c - lo) / (hi - lo) - 1.0, -1.0, 1.0).astype(np.float32)
 
     def hover_action(self) -> np.ndarray:
+        """The normalised action that commands hover (no rates, m g)."""
         return self.to_action([0.0, 0.0, 0.0, self.hover_thrust])

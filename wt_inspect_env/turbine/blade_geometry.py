@@ -90,18 +90,22 @@ class BladeShape:
 
     @property
     def root(self) -> float:
+        """Span position [m] of the first station (the blade root)."""
         return self.span[0]
 
     @property
     def tip(self) -> float:
+        """Span position [m] of the last station (the tip)."""
         return self.span[-1]
 
     @property
     def length(self) -> float:
+        """Blade length [m] from root to tip station."""
         return self.span[-1] - self.span[0]
 
     @property
     def max_chord(self) -> float:
+        """Largest chord [m] over the stations."""
         return max(self.chord)
 
     @property
@@ -155,6 +159,8 @@ def section_contour(tc: float, n_half: int) -> np.ndarray:
 
 
 def pitch_axis_at(shape: BladeShape, tc: float) -> float:
+    """Pitch-axis chord fraction of a section of relative thickness ``tc``: 0.5 for the circle, blended
+    to the shape's ``pitch_axis`` for the aerofoil."""
     return 0.5 * _blend(tc) + shape.pitch_axis * (1.0 - _blend(tc))
 
 

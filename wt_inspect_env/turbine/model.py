@@ -310,7 +310,8 @@ class TurbineSpec:
         """Smallest overhang at which a blade pointing straight down misses the tower: the largest
         tower radius at a blade station's height plus that station's half extent along the axis."""
         def tower_r(z: np.ndarray) -> np.ndarray:
-            return self.tower_radius + (self.tower_top_radius - self.tower_radius) * np.clip(z / self.tower_height, 0, 1)
+            return (self.tower_radius
+                    + (self.tower_top_radius - self.tower_radius) * np.clip(z / self.tower_height, 0, 1))
 
         hub = 0.7 * self.blade_width if self.hub_radius is None else self.hub_radius
         if self.blade is None:
@@ -353,6 +354,7 @@ class TurbineSpec:
 
     @property
     def rotor_center(self) -> np.ndarray:
+        """The rotor centre [m]: the tower top, moved along the facing by the overhang."""
         return np.array([self.position[0], self.position[1], self.tower_height]) + self.overhang * self.facing
 
     @property
@@ -377,6 +379,7 @@ class TurbineSpec:
 
     @property
     def n_cap_triangles(self) -> int:
+        """Number of triangles of the blades' root and tip caps."""
         if self.blade is not None:
             return N_BLADES * 2 * self._shape_grid()[1]
         nu, nv, nt = self.grid
@@ -437,6 +440,7 @@ class TurbineMesh:
 
     @property
     def n_blade_triangles(self) -> int:
+        """Number of blade triangles (those coverage counts)."""
         return len(self.blade_vertices)
 
     @property
@@ -514,7 +518,7 @@ def build_turbine(spec: TurbineSpec | None = None, **options: Any) -> TurbineMes
         radial = rotation_matrix(axis, math.radians(spec.rotor_azimuth_deg + 120.0 * k)) @ up
         chord = np.cross(axis, radial)
 
-        def point(U: Any, V: Any, S: Any) -> np.ndarray:
+        def point(U: Any, V: Any, S: Any, *, radial: np.ndarray = radial, chord: np.ndarray = chord) -> np.ndarray:
             U, V, S = np.broadcast_arrays(np.asarray(U, float), np.asarray(V, float), np.asarray(S, float))
             return (center + (r0 + U)[..., None] * radial + V[..., None] * chord + S[..., None] * axis)
 
@@ -694,6 +698,7 @@ class MeshLoadOptions:
 
     @property
     def scale(self) -> float:
+        """Metres per file unit."""
         return UNITS[self.unit] if isinstance(self.unit, str) else float(self.unit)
 
     def up_rotation(self, fmt: str) -> np.ndarray:
@@ -723,6 +728,7 @@ class MeshPart:
     extent: tuple[float, float, float]   # sizes along the principal axes, long first
 
     def describe(self) -> str:
+        """One line about the part (faces, extent, tilt, height range) for logs and errors."""
         e = self.extent
         tilt = math.degrees(math.acos(min(1.0, abs(float(self.direction[2])))))
         return (f"{len(self.faces)} faces {e[0]:.3g} x {e[1]:.3g} x {e[2]:.3g} m, long axis {tilt:.0f} deg "

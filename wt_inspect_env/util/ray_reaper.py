@@ -145,6 +145,7 @@ class Reaper:
         self._before: set[int] = set()
 
     def start(self) -> None:
+        """Start the reaper process, telling it which of this process's children existed before Ray."""
         if not supported():
             return
         me = os.getpid()
@@ -169,6 +170,7 @@ class Reaper:
 
 
 def main(argv: list[str]) -> int:
+    """Run the reaper process (arguments in ``argv``); it ignores Ctrl-C and SIGTERM so that it can clean up."""
     # the driver handles Ctrl-C / SIGTERM and shuts Ray down; the reaper must outlive it to clean up
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)

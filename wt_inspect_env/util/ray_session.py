@@ -9,6 +9,7 @@ from . import ray_reaper
 
 
 def import_ray() -> Any:
+    """Import Ray, or raise an error that says which extra installs it."""
     try:
         import ray
     except ModuleNotFoundError:

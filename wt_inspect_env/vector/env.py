@@ -117,7 +117,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
         self.winds = world.winds
         self.sim, self.mission, self.params, self.scaling = world.sim, world.mission, world.params, world.scaling
-        self.dt, self.camera, self.n_triangles, self.time_limit = world.dt, world.camera, world.n_triangles, world.time_limit
+        self.dt, self.camera = world.dt, world.camera
+        self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.single_observation_space = observation_space()
         self.action_space = batch_space(self.single_action_space, n)
@@ -128,6 +129,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def hooks(self) -> TaskHooks:
+        """The task's observation, reward and termination rules (shared with the world)."""
         return self.world.hooks
 
     @property
@@ -137,6 +139,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def steps(self) -> np.ndarray:
+        """Control steps of each drone's running episode."""
         return self.world.steps
 
     # ------------------------------------------------------------------ gym API
@@ -174,6 +177,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         return w.observations(np.zeros(n, dtype=bool)), self._infos(None)
 
     def step(self, actions):
+        """Hold each drone's action for one control step; drones whose episode ended are reset (autoreset)."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
         w, n = self.world, self.num_envs
@@ -202,6 +206,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         return obs, r.reward, r.terminated, r.truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
+        """Close the world's simulator."""
         self.world.close()
 
     # ------------------------------------------------------------------ queries
@@ -211,6 +216,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def coverage(self) -> np.ndarray:
+        """Each drone's coverage of its running episode."""
         return self.world.coverage
 
     # ------------------------------------------------------------------ internals

@@ -45,6 +45,7 @@ _MAX_GEOMETRIES = 8
 
 
 def geometry_group(g: int) -> int:
+    """PyBullet collision group bit of geometry ``g`` (each geometry its own, above the ground's)."""
     return _GEOMETRY_GROUP0 << g
 
 
@@ -118,6 +119,7 @@ class BatchedQuadrotorSim:
 
     @property
     def plants(self) -> list[QuadrotorParams]:
+        """Each drone's airframe (nominal or drawn by :meth:`set_plant`)."""
         return self._integrator.core.plants
 
     @property
@@ -127,6 +129,7 @@ class BatchedQuadrotorSim:
 
     @property
     def integrator(self) -> DroneIntegrator:
+        """The integrator the drones' physics runs in."""
         return self._integrator
 
     # ------------------------------------------------------------------ plants
@@ -273,11 +276,13 @@ class BatchedQuadrotorSim:
 
     @property
     def client(self) -> int:
+        """The PyBullet client id (an error once closed)."""
         if self._client < 0:
             raise RuntimeError("this BatchedQuadrotorSim is closed")
         return self._client
 
     def close(self) -> None:
+        """Disconnect the PyBullet client (idempotent)."""
         if self._client >= 0:
             try:
                 p.disconnect(physicsClientId=self._client)
@@ -345,6 +350,7 @@ class BatchedQuadrotorSim:
 
     @property
     def time(self) -> np.ndarray:
+        """Each drone's simulated time [s]."""
         return self.steps * self.dt
 
     # ------------------------------------------------------------------ stepping

@@ -24,7 +24,8 @@ applies the four forces at the rotor positions instead, and a test checks both a
 
 ``SimConfig(rate_loop=False)`` bypasses the rate loop: the commanded body rates are imposed
 directly on the body at every sub-step (with the gyroscopic torque cancelled so they stay constant
-through it) and the collective thrust acts at the centre of mass. That is exactly the paper's model (:mod:`~wt_inspect_env.physics.dynamics`), which the agreement test relies on.
+through it) and the collective thrust acts at the centre of mass. That is exactly the paper's model
+(:mod:`~wt_inspect_env.physics.dynamics`), which the agreement test relies on.
 """
 from __future__ import annotations
 
@@ -36,14 +37,14 @@ import numpy as np
 import pybullet as p
 
 from ..physics.quadrotor import GRAVITY, QuadrotorParams, get_preset
-from ..scene.pybullet_refs import call_releasing
-from .integration import DroneIntegrator
-from ..planner.proximity import MeshProximity
 from ..physics.rate_control import Mixer, RateGains
-from ..scene.scene_visuals import create_chunks, load_texture, show_chunks
 from ..physics.sim_config import SimConfig
-from ..util.validation import check_array, check_positive
 from ..physics.wind import WindField, make_wind
+from ..planner.proximity import MeshProximity
+from ..scene.pybullet_refs import call_releasing
+from ..scene.scene_visuals import create_chunks, load_texture, show_chunks
+from ..util.validation import check_array, check_positive
+from .integration import DroneIntegrator
 
 
 def _mesh_arrays(mesh: Any) -> tuple[list, list]:
@@ -248,6 +249,7 @@ class QuadrotorSim:
 
     @property
     def body_id(self) -> int:
+        """PyBullet body id of the drone."""
         return self._body
 
     def _check_open(self) -> None:
@@ -375,6 +377,7 @@ class QuadrotorSim:
 
     @property
     def ground_id(self) -> int:
+        """PyBullet body id of the ground plane."""
         return self._ground
 
     # ------------------------------------------------------------------ plant
@@ -385,6 +388,7 @@ class QuadrotorSim:
 
     @property
     def thrust_scale(self) -> float:
+        """The thrust factor of the plant in use (:meth:`set_plant`)."""
         return self._thrust_scale
 
     def set_plant(self, plant: QuadrotorParams | None = None, thrust_scale: float = 1.0) -> None:
@@ -473,6 +477,7 @@ class QuadrotorSim:
 
     @property
     def world_velocity(self) -> np.ndarray:
+        """The drone's velocity in the world frame [m/s] (a copy)."""
         return self._integrator.core.vel[0].copy()
 
     @property

@@ -441,4 +441,5 @@ class InspectionWorld:
         return out
 
     def close(self) -> None:
+        """Close the simulator."""
         self.sim.close()
