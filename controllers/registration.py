@@ -39,7 +39,6 @@ environment's period), as the paper's 200 Hz loop ran a 30 x 0.01 s horizon.
 """
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import json
 import math
@@ -98,18 +97,10 @@ def parse_mpc_argument(arg: str) -> dict[str, str]:
     return out
 
 
-def weights_path(arg: str) -> str:
-    """The file of an MPC entry's argument ``weights=FILE`` (alone); one-line ValueError otherwise."""
-    key, sep, path = arg.partition("=")
-    if key.strip() != "weights" or not sep or not path:
-        raise ValueError(f"argument must be weights=FILE, got {arg!r}")
-    return path
-
-
-def load_entry_weights(kind: str, arg: str) -> Any:
-    """The weights of ``weights=FILE`` for an MPC entry kind (missing fields: the entry's set)."""
+def load_entry_weights(kind: str, path: str) -> Any:
+    """The weights of the file ``path`` for an MPC entry kind (missing fields: the entry's set)."""
     cls, base = _weights_class(kind)
-    return cls.load(weights_path(arg), base=base)
+    return cls.load(path, base=base)
 
 
 def damped_solver(damping: float) -> Any:
@@ -120,9 +111,8 @@ def damped_solver(damping: float) -> Any:
     commands alternate between their bounds from one step to the next (``results/lab``) - and
     damping the step is the standard remedy; on the paper-scale problems it slows the tracking,
     so the default stays undamped."""
-    from .rti_policy import MPCConfig
-    default = {f.name: f for f in dataclasses.fields(MPCConfig)}["solver"].default_factory()
-    return dataclasses.replace(default, regularization=float(damping))
+    from .rti_policy import default_solver
+    return default_solver(regularization=float(damping))
 
 
 def mpc_options(kind: str, arg: str) -> dict[str, Any]:
@@ -130,7 +120,7 @@ def mpc_options(kind: str, arg: str) -> dict[str, Any]:
     parts = parse_mpc_argument(arg)
     options: dict[str, Any] = {}
     if "weights" in parts:
-        options["weights"] = load_entry_weights(kind, "weights=" + parts["weights"])
+        options["weights"] = load_entry_weights(kind, parts["weights"])
     if "damping" in parts:
         options["solver"] = damped_solver(float(parts["damping"]))
     return options
@@ -158,7 +148,7 @@ def _weights_entry(kind: str, build: Callable[..., Any], description: str, displ
         parts = parse_mpc_argument(arg)
         out = []
         if "weights" in parts:
-            w = load_entry_weights(kind, "weights=" + parts["weights"])
+            w = load_entry_weights(kind, parts["weights"])
             data = json.dumps(w.to_dict(), sort_keys=True)
             out.append("weights=" + hashlib.sha256(data.encode()).hexdigest()[:16])
         if "damping" in parts:

@@ -337,6 +337,13 @@ class LSQWeights:
 # configuration
 # ------------------------------------------------------------------------------------------------
 
+def default_solver(regularization: float = 0.0) -> RTIOptions:
+    """The MPCs' solver options: the fastest verified QP path, HPIPM called directly (clearance
+    constraint included) from acados' initial barrier parameter (``RTIOptions(qp_solver="casadi")``
+    keeps CasADi's plugin); ``regularization`` damps the real-time iteration (none by default)."""
+    return RTIOptions(qp_mode="speed_abs", qp_solver="hpipm", qp_mu0=1.0, regularization=regularization)
+
+
 def _default_params() -> QuadrotorParams:
     return get_preset("matrice100")
 
@@ -383,10 +390,7 @@ class MPCConfig:
     rk4_steps: int = 1
     control_dt: float | None = None
     scaling: ActionScaling | None = None
-    # The fastest verified QP path: HPIPM called directly (clearance constraint included) from
-    # acados' initial barrier parameter; RTIOptions(qp_solver="casadi") keeps CasADi's plugin.
-    solver: RTIOptions = field(default_factory=lambda: RTIOptions(qp_mode="speed_abs", qp_solver="hpipm",
-                                                                  qp_mu0=1.0))
+    solver: RTIOptions = field(default_factory=default_solver)
     backend: str = "rti"
     prepare_ahead: bool = False
     clearance: bool = True

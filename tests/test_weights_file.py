@@ -32,9 +32,9 @@ def test_round_trip_through_a_file_gives_the_same_weights(tmp_path, weights):
 
 def test_missing_fields_keep_the_base_set(tmp_path):
     path = _write(tmp_path, {"heading": 99.0})
-    w = load_entry_weights("vtnmpc-later", f"weights={path}")
+    w = load_entry_weights("vtnmpc-later", str(path))
     assert w == dataclasses.replace(VTNMPCWeights.later_tuning(), heading=99.0)
-    assert load_entry_weights("vtnmpc", f"weights={path}").distance == VTNMPCWeights().distance
+    assert load_entry_weights("vtnmpc", str(path)).distance == VTNMPCWeights().distance
     # the config accepts a path too (missing fields: the class's default set, the paper's)
     assert VTNMPCConfig(weights=str(path)).weights == VTNMPCWeights(heading=99.0)
 

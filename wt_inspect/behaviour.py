@@ -145,12 +145,10 @@ def _tune_runs(argv: Sequence[str]) -> list[StudyRun]:
     multipliers 1, enqueued before the sampler's), on each wind - the registered controller's
     evaluation run. The sampler's draws are Optuna's and not digested."""
     from .commands.tune import build_parser
-    from .evaluation import make_spec
-    from .evaluation.scenarios import env_options
+    from .evaluation import sweep_specs
     a = build_parser("wt-inspect tune").parse_args(list(argv))
-    return [StudyRun("evaluate", make_spec(a.scenario, a.controller, float(w), a.seed,
-                                           env_options(a.scenario, float(w)), a.max_time, 1))
-            for w in a.winds]
+    return [StudyRun("evaluate", s) for s in sweep_specs(a.scenario, [a.controller], a.winds, [a.seed],
+                                                         max_time=a.max_time)]
 
 
 _PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {

@@ -66,25 +66,24 @@ def build_parser(prog: str = "wt-inspect study pose-sweep") -> argparse.Argument
 
 
 def planned_specs(argv: Sequence[str]) -> list[Any]:
-    """The run specs the command line ``argv`` flies, in table order (controller, facing,
-    azimuth); all validation here, before anything runs."""
-    from ..evaluation.runner import make_spec
-    from ..evaluation.scenarios import env_options
-    a = build_parser().parse_args(list(argv))
+    """The run specs the command line ``argv`` flies (what ``wt-inspect reproduce`` digests)."""
+    return specs_of(build_parser().parse_args(list(argv)))
+
+
+def specs_of(a: argparse.Namespace) -> list[Any]:
+    """The run specs of parsed arguments, in table order (controller, facing, azimuth), each
+    planned by the evaluation's own :func:`~wt_inspect.evaluation.sweep_specs`; all validation
+    here, before anything runs."""
+    from ..evaluation import sweep_specs
     controllers = [c.strip() for c in a.controllers.split(",") if c.strip()]
     if not controllers:
         raise ValueError(f"--controllers names no controller: {a.controllers!r}")
     azimuths, facings = _grid(a.azimuths, "--azimuths"), _grid(a.facings, "--facings")
     if a.max_time is not None and not (math.isfinite(a.max_time) and a.max_time > 0):
         raise ValueError(f"--max-time must be a positive number of simulated seconds, got {a.max_time!r}")
-    specs = []
-    for c in controllers:
-        for f in facings:
-            for az in azimuths:
-                turbine = {**TURBINES[a.turbine], "rotor_azimuth_deg": az, "facing_deg": f}
-                opts = env_options(SCENARIO, WIND, turbine=turbine)
-                specs.append(make_spec(SCENARIO, c, WIND, 0, opts, a.max_time, 1))
-    return specs
+    return [spec for c in controllers for f in facings for az in azimuths
+            for spec in sweep_specs(SCENARIO, [c], [WIND], [0], max_time=a.max_time,
+                                    turbine={**TURBINES[a.turbine], "rotor_azimuth_deg": az, "facing_deg": f})]
 
 
 def row(result: Any, turbine: str) -> dict[str, Any]:
@@ -192,7 +191,7 @@ def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
     ap = build_parser(prog)
     args = ap.parse_args(argv)
     try:
-        specs = planned_specs(argv)
+        specs = specs_of(args)
     except ValueError as exc:
         ap.error(str(exc))
     from wt_inspect_env.util.atomic_io import write_text_atomic
