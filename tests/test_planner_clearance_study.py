@@ -114,3 +114,18 @@ def test_bad_arguments_name_the_option(tmp_path, capsys, argv, match):
     with pytest.raises(SystemExit):
         pc.main(argv + ["--out", str(tmp_path)])
     assert match in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("azimuth", [70.0, 90.0])
+def test_nrel_5mw_poses_whose_transit_needed_the_grid_search_get_clear_missions(azimuth):
+    """The rotor-pose sweep found these: a root-end stand-off in the pocket between a blade root
+    and the hub, which no one- or two-via detour leaves (the planner raised NoRouteError)."""
+    from wt_inspect_env.task.env_config import EnvConfig
+    from wt_inspect_env.task.mission import build_mission
+    from wt_inspect_env.task.reference import standoff_poses
+    cfg = EnvConfig(task="full", wind="none", rotor_turn_deg=None,
+                    turbine={"preset": "nrel-5mw", "rotor_azimuth_deg": azimuth, "facing_deg": 0.0})
+    m = build_mission(cfg)
+    poses = standoff_poses(m.points, m.normals, cfg.standoff)
+    r = pc.check_mission(poses, m.phase, [DistanceField(t.all_triangles) for t in m.turbines], cfg.d_min)
+    assert pc.failures({"refused": "", "d_min_m": cfg.d_min, **r}) == [], r

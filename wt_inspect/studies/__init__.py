@@ -34,7 +34,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "hold-check": ("wt_inspect.studies.hold_check", "VT-NMPC+ with decisions held at 25 Hz like DAgger's"),
     "safety-filter": ("wt_inspect.studies.safety_filter", "the safety filter against adversarial policies"),
     "pose-sweep": ("wt_inspect.studies.pose_sweep", "whole missions over rotor azimuth x nacelle facing"),
-    "planner-clearance": ("wt_inspect.studies.planner_clearance", "the planner's clearance on drawn turbines (no flight)"),
+    "planner-clearance": ("wt_inspect.studies.planner_clearance", "planned paths vs d_min (no flight)"),
 }
 
 

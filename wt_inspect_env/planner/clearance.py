@@ -12,6 +12,10 @@ routes: the straight segment if it is clear, otherwise the shortest clear detour
 two via points placed around the segment along the turbine's frame axes (rotor axis, vertical,
 lateral and their diagonals) at growing offsets. A path is sampled every ``step`` and each sample
 must clear ``clearance + step / 2``, so the continuous path between samples clears ``clearance``.
+Where no such detour exists (a pose in a pocket between a blade root and the hub, where every
+frame direction leads into the structure), :meth:`Clearance.grid_route` searches a grid of free
+space: the shortest 26-connected path between cells certified clear (scipy's compiled Dijkstra),
+then shortened by keeping only the turns a straight clear segment cannot skip.
 """
 from __future__ import annotations
 
@@ -184,5 +188,81 @@ class Clearance:
             c = cands[i]
             if all(seg_ok(c[j], c[j + 1]) for j in range(len(c) - 1)):
                 return c
-        raise NoRouteError(f"no collision-free transit from {np.round(qa, 2).tolist()} to "
-                           f"{np.round(qb, 2).tolist()} with clearance {self.clearance} m")
+        route = self.grid_route(qa, qb)
+        if route is None:
+            raise NoRouteError(f"no collision-free transit from {np.round(qa, 2).tolist()} to "
+                               f"{np.round(qb, 2).tolist()} with clearance {self.clearance} m")
+        return route
+
+    def grid_route(self, qa: np.ndarray, qb: np.ndarray, max_cells: int = 400_000) -> np.ndarray | None:
+        """A clear polyline ``qa -> qb`` through a grid of free space, or None.
+
+        The search box is the segment's bounding box grown by ``margin`` (two clearances plus
+        a quarter of the segment, then twice that, then four times), cut into cubic cells of side
+        ``h`` (at least ``step``, at most ``max_cells`` cells). A cell is free when its centre
+        clears ``required + h sqrt(3) / 2``: the distance is 1-Lipschitz, so the straight segment
+        between the centres of neighbouring cells (at most ``h sqrt(3)`` long) then clears
+        ``required`` everywhere. ``qa`` and ``qb`` join the nearest free cells they reach in a
+        clear straight line; the cell path found by Dijkstra is then shortened greedily (from
+        each kept vertex, the farthest later vertex in clear sight), so the polyline is clear by
+        the same sampled check as every other route."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.csgraph import dijkstra
+        qa, qb = np.asarray(qa, float), np.asarray(qb, float)
+        if not (self.is_clear(qa[None]) and self.is_clear(qb[None])):
+            return None
+        base = 2.0 * self.clearance + 0.25 * float(np.linalg.norm(qb - qa))
+        for grow in (1.0, 2.0, 4.0):
+            lo = np.minimum(qa, qb) - grow * base
+            hi = np.maximum(qa, qb) + grow * base
+            h = max(self.step, float(np.cbrt(np.prod(hi - lo) / max_cells)))
+            shape = np.maximum(np.ceil((hi - lo) / h).astype(int), 1)
+            axes = [lo[k] + h * (np.arange(shape[k]) + 0.5) for k in range(3)]
+            centres = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+            need = self.required + h * np.sqrt(3.0) / 2.0
+            free = self.field.distance(centres, need + 1e-6) >= need
+            if self.floor != -np.inf:
+                free &= centres[:, 2] - self.floor >= need
+            index = np.full(len(centres), -1, dtype=np.int64)
+            index[free] = np.arange(int(free.sum()))
+            grid = index.reshape(shape)
+            rows, cols, wts = [], [], []
+            for off in itertools.product((-1, 0, 1), repeat=3):
+                if off <= (0, 0, 0):        # each undirected edge once
+                    continue
+                src = grid[tuple(slice(max(0, -o), shape[k] - max(0, o)) for k, o in enumerate(off))]
+                dst = grid[tuple(slice(max(0, o), shape[k] - max(0, -o)) for k, o in enumerate(off))]
+                both = (src >= 0) & (dst >= 0)
+                rows.append(src[both])
+                cols.append(dst[both])
+                wts.append(np.full(int(both.sum()), h * float(np.linalg.norm(off))))
+            n = int(free.sum())
+            ends = []
+            for q in (qa, qb):          # the nearest free cells q sees in a clear straight line
+                fc = centres[free]
+                order = np.argsort(np.linalg.norm(fc - q, axis=1))[:64]
+                hit = next((int(i) for i in order if self.polyline_clear(np.stack([q, fc[i]]))), None)
+                ends.append(hit)
+            if n == 0 or ends[0] is None or ends[1] is None:
+                continue
+            r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(wts)
+            graph = coo_matrix((w, (r, c)), shape=(n, n)).tocsr()
+            dist, pred = dijkstra(graph, directed=False, indices=ends[0], return_predecessors=True)
+            if not np.isfinite(dist[ends[1]]):
+                continue
+            chain, k = [], ends[1]
+            while k >= 0:
+                chain.append(k)
+                k = int(pred[k])
+            fc = centres[free]
+            path = np.vstack([qa, fc[chain[::-1]], qb])
+            out, i = [path[0]], 0
+            while i < len(path) - 1:
+                j = next(j for j in range(len(path) - 1, i, -1)
+                         if j == i + 1 or self.polyline_clear(np.stack([path[i], path[j]])))
+                out.append(path[j])
+                i = j
+            route = np.array(out)
+            if self.polyline_clear(route):
+                return route
+        return None
