@@ -10,6 +10,7 @@ covered by the layering test and run from any directory::
     wt-inspect study hold-check   --seconds 12             # printed; quoted in results/imitation/dagger
     wt-inspect study safety-filter --starts 1000 --out results/safety_filter
     wt-inspect study pose-sweep   --turbine paper --out results/pose_sweep/paper --jobs 2
+    wt-inspect study planner-clearance --turbines 1000 --out results/planner_clearance --jobs 2
 
 * :mod:`.closed_loop` - the model-plant closed loop (an MPC flown on the CasADi model plus the
   simulator's drag), shared with the controller tests;
@@ -18,7 +19,8 @@ covered by the layering test and run from any directory::
 * :mod:`.routes` - every training route to a full-mission policy on one time axis;
 * :mod:`.hold_check` - VT-NMPC+ with its decisions held like the DAgger learner's;
 * :mod:`.safety_filter` - the safety filter against policies that fly at the structure;
-* :mod:`.pose_sweep` - whole missions over a grid of rotor azimuths and nacelle facings.
+* :mod:`.pose_sweep` - whole missions over a grid of rotor azimuths and nacelle facings;
+* :mod:`.planner_clearance` - the planner's stand-off path against d_min on drawn turbines.
 """
 from __future__ import annotations
 
@@ -32,6 +34,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "hold-check": ("wt_inspect.studies.hold_check", "VT-NMPC+ with decisions held at 25 Hz like DAgger's"),
     "safety-filter": ("wt_inspect.studies.safety_filter", "the safety filter against adversarial policies"),
     "pose-sweep": ("wt_inspect.studies.pose_sweep", "whole missions over rotor azimuth x nacelle facing"),
+    "planner-clearance": ("wt_inspect.studies.planner_clearance", "planned paths vs d_min (no flight)"),
 }
 
 

@@ -6,9 +6,8 @@ mesh to each stage of its predicted trajectory (the online data of a half-space 
 a KD-tree on the triangle centroids gives the ``candidates`` nearest triangles of each query
 point, and the exact closest point on each candidate (Ericson's region test,
 :func:`~wt_inspect_env.planner.clearance.closest_points_on_triangles`) picks the nearest. The few
-large triangles (rho above three times the median, as in the planner's
-:class:`~wt_inspect_env.planner.clearance.DistanceField`) are always candidates, so a coarse
-loaded tower is not missed because its centroid is far away.
+large triangles (centroid-to-vertex radius above three times the median) are always candidates,
+so a coarse loaded tower is not missed because its centroid is far away.
 
 :class:`TurbineProximity` is the geometry of a whole mission: one :class:`MeshProximity` per rotor
 position (the environment swaps the collision mesh when the rotor turns), and which one applies.
