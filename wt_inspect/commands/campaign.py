@@ -57,7 +57,6 @@ import os
 import shlex
 import sys
 import time
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping, Sequence
@@ -70,7 +69,7 @@ from wt_inspect_env.util.interrupts import EXIT_INTERRUPTED, interrupted_message
 
 from ..evaluation import OutputDirError, prepare_out_dir, registry, resume_runs
 from ..evaluation.backends import BACKENDS, check_jobs, run_specs
-from ..evaluation.runner import RunResult, RunSpec, fly, make_env, make_spec, save_run
+from ..evaluation.runner import RunResult, RunSpec, exception_result, fly, make_env, make_spec, save_run
 
 SCENARIO = "campaign"
 FORMAT = "wt-inspect-campaign/2"   # /2: whole missions, NREL turbines, any wind direction, airframe DR, invocations
@@ -318,14 +317,8 @@ def run_episode(spec: RunSpec, factory: Any = None, *, record: bool = True, prog
         res.solve["start_redraws"] = float(redraws)
         res.solve.update(_airframe_factors(env.unwrapped))
     except Exception as exc:   # the campaign records every failure and goes on
-        where = traceback.extract_tb(exc.__traceback__)[-1]
-        msg = f"{type(exc).__name__}: {str(exc).strip().splitlines()[0] if str(exc).strip() else ''} " \
-              f"({Path(where.filename).name}:{where.lineno})"
-        res = RunResult(spec=spec, metrics={"error": msg}, termination="exception", mission_complete=False,
-                        steps=counter.steps if counter else 0, sim_time_s=math.nan,
-                        wall_time_s=time.perf_counter() - t0,
-                        solve={"fallback_steps": float(counter.fallbacks) if counter else math.nan},
-                        d_ref=math.nan, safety_margin=math.nan)
+        res = exception_result(spec, exc, time.perf_counter() - t0, steps=counter.steps if counter else 0,
+                               solve={"fallback_steps": float(counter.fallbacks) if counter else math.nan})
     finally:
         if env is not None:
             env.close()
