@@ -16,7 +16,8 @@ from pathlib import Path
 
 from wt_inspect_env.planner import PlannerConfig, plan_inspection
 from wt_inspect_env.planner.config import PAPER_ROTOR_TURN_DEG, STANDOFF_MODES
-from wt_inspect_env.turbine.model import TurbineSpec, build_turbine
+from wt_inspect_env.turbine.mesh import build_turbine
+from wt_inspect_env.turbine.spec import TurbineSpec
 from wt_inspect_env.util.atomic_io import atomic_paths, check_out_dir
 from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from wt_inspect_env.util.validation import coerce_config
