@@ -198,7 +198,7 @@ def test_registry_finds_every_policy_through_entry_points():
     from wt_inspect.evaluation import registry
     from wt_inspect_env.policy import PolicyEntry
     entries = registry.entries()
-    assert {"vtnmpc", "vtnmpc-plus", "vtnmpc-dob", "vtnmpc-later", "nmpc", "pampc", "ppo", "sac"} <= set(entries)
+    assert {"vtnmpc", "vtnmpc-plus", "vtnmpc-dob", "vtnmpc-later", "nmpc", "pampc", "ppo"} <= set(entries)
     assert all(isinstance(e, PolicyEntry) for e in entries.values())
     assert entries["ppo"].takes_argument and not entries["vtnmpc"].takes_argument
     roots = {p.name for p in registry.source_roots()}
