@@ -33,12 +33,12 @@ class RTIOptions:
     steps, the converged point is unchanged); ``compiled`` selects generated C for the QP data.
     ``qp_solver``: ``"casadi"`` calls HPIPM through CasADi's ``conic`` plugin; ``"hpipm"`` calls
     it directly (:mod:`controllers.hpipm_direct`: memory allocated once, only finite bounds, x_0
-    eliminated, the QP loaded in the preparation phase) - OCPs without path constraints only;
-    where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
+    eliminated, the QP loaded in the preparation phase; path constraints as HPIPM's general
+    constraints); where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
     ``qp_mu0``: HPIPM's initial barrier parameter (None: the ``qp_mode`` preset's, 10 for
-    ``speed_abs``). 1.0 is acados' value; measured on the VT-NMPC it needs 2
-    interior-point iterations instead of 3 and lands closer to the converged QP solution when
-    rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve).
+    ``speed_abs``). 1.0 is acados' value: on the VT-NMPC it needs fewer interior-point
+    iterations and lands closer to the converged QP solution when rate bounds are active
+    (``wt-inspect bench solver``).
     ``tangential_predictor`` (with ``qp_solver="hpipm"``): the preparation also solves the QP for
     the state the plan predicts and the solution's gains with respect to x_0 with its active input
     bounds held (a Riccati recursion on the free inputs); the feedback is then that affine map of

@@ -45,7 +45,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--no-plot", action="store_true", help="skip plan.png (rendering takes ~2 s)")
+    ap.add_argument("--no-plot", action="store_true", help="skip plan.png (rendering is the slow part)")
     ap.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
                     help=f"format of the plan figure (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
     t = ap.add_argument_group("turbine (defaults: the paper's Vestas V100)")
