@@ -17,7 +17,7 @@ observation -> :class:`~agents.wrappers.FeatureEncoder` -> normalisation -> netw
 the network's action is held for ``action_repeat`` control steps and decoded at each of them with
 the current attitude (tilt compensation, attitude loop), exactly as in training. The evaluation
 harness resolves ``ppo:PATH`` /
-``sac:PATH`` controller names through it. :func:`agent_env` is the same pipeline as an env wrapper,
+controller names through it. :func:`agent_env` is the same pipeline as an env wrapper,
 for code that drives the bare SB3 model itself (``model.predict(obs)`` on the wrapped env).
 """
 from __future__ import annotations
@@ -44,15 +44,16 @@ from .wrappers import (
     ResidualHoverAction,
 )
 
-ALGOS: tuple[str, ...] = ("ppo", "sac")
+#: the reinforcement-learning algorithms that train and load agents here (SAC was dropped: CHANGELOG)
+ALGOS: tuple[str, ...] = ("ppo",)
 SIDECAR_FORMAT = 1
 
 
 def algo_class(algo: str):
     """The stable-baselines3 class for an algorithm name (ValueError listing the valid ones)."""
     check_choice("algorithm", algo, ALGOS)
-    from stable_baselines3 import PPO, SAC
-    return {"ppo": PPO, "sac": SAC}[algo]
+    from stable_baselines3 import PPO
+    return {"ppo": PPO}[algo]
 
 
 def sidecar_paths(model_path: str | Path) -> tuple[Path, Path, Path]:
@@ -170,7 +171,7 @@ def load_sb3_policy(algo: str, path: str | Path, env=None, *, trust_model: bool 
     The returned object takes the env's raw Dict observation and returns a normalised env action
     (``reset / act / predict``). The stand-off, control period and airframe come from ``env`` when
     given (features are relative to *its* ideal pose; hover thrust from *its* mass), else from the
-    sidecar. ValueError if ``algo`` is not one of ``ppo, sac``, the file is missing, the sidecar
+    sidecar. ValueError if ``algo`` is not ``ppo``, the file is missing, the sidecar
     says another algorithm, or the file would need unpickling (:mod:`agents.safe_load`) and
     ``trust_model`` is False.
     """

@@ -1,4 +1,4 @@
-"""The saved stable-baselines3 agents as named policies: ``ppo:PATH`` and ``sac:PATH``.
+"""The saved stable-baselines3 agents as named policies: ``ppo:PATH``.
 
 Entry points of the group ``wt_inspect.controllers`` (see ``pyproject.toml``) whose values are the
 :class:`~wt_inspect_env.policy.PolicyEntry` objects below; the evaluation harness finds them
@@ -74,5 +74,3 @@ def _loader(algo: str):
 ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)",
                   display_name="PPO",
                   takes_argument=True, check=_check("ppo"), fingerprint=model_fingerprint, trust_option=True)
-sac = PolicyEntry(_loader("sac"), "a saved stable-baselines3 SAC model (sac:PATH.zip or sac:NAME)", display_name="SAC",
-                  takes_argument=True, check=_check("sac"), fingerprint=model_fingerprint, trust_option=True)

@@ -341,7 +341,7 @@ PPO_RESUME_KEYS = ("n_steps", "batch_size", "n_epochs", "gae_lambda", "ent_coef"
 
 
 def resume_overrides(algo: str, recipe: Recipe) -> dict[str, Any]:
-    """The settings of an explicitly given recipe applied to a resumed PPO model (none for SAC)."""
+    """The settings of an explicitly given recipe applied to a resumed PPO model."""
     if algo != "ppo":
         return {}
     kw = _algo_kwargs(recipe)

@@ -10,8 +10,10 @@ import pytest
 from wt_inspect_env.planner import cluster_surfaces, plan_inspection
 from wt_inspect_env.planner.clearance import DistanceField
 from wt_inspect_env.turbine.blade_geometry import BladeShape, section_contour
-from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
+from wt_inspect_env.turbine.loading import load_turbine_mesh
+from wt_inspect_env.turbine.mesh import build_turbine
 from wt_inspect_env.turbine.presets import NREL_5MW_NODES
+from wt_inspect_env.turbine.spec import TurbineSpec
 
 
 @pytest.fixture(scope="module")

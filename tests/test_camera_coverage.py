@@ -496,7 +496,7 @@ def test_default_camera_covers_every_surface_of_the_default_turbine_from_the_sta
     inspected face's centre line of the default turbine, with occlusion by the whole turbine."""
     import pybullet as p
 
-    from wt_inspect_env.turbine.model import build_turbine
+    from wt_inspect_env.turbine.mesh import build_turbine
     tb = build_turbine()
     cid = _turbine_client(tb)
     try:
@@ -526,7 +526,7 @@ def test_tower_hides_blade_roots_seen_from_behind():
     line of sight crosses the tower cylinder (checked analytically)."""
     import pybullet as p
 
-    from wt_inspect_env.turbine.model import build_turbine
+    from wt_inspect_env.turbine.mesh import build_turbine
     tb = build_turbine()
     spec = tb.spec
     cid = _turbine_client(tb)

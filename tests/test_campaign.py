@@ -3,12 +3,14 @@ crashes, exceptions, non-finite states, fallbacks and memory reported."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
 import pytest
 
 from wt_inspect.commands import campaign as cp
+from wt_inspect.evaluation import registry
 from wt_inspect.evaluation.runner import load_run, make_spec
 
 
@@ -47,7 +49,7 @@ def test_draws_are_seeded_in_range_and_prefix_stable() -> None:
 def test_every_controller_gets_the_same_episodes() -> None:
     cfg = cp.CampaignConfig(episodes=8, seed=5)
     d1, s1 = cp.campaign_specs(cfg)
-    d2, s2 = cp.campaign_specs(cp.dataclasses.replace(cfg, controller="ppo:ppo_full_vec128"))
+    d2, s2 = cp.campaign_specs(dataclasses.replace(cfg, controller="ppo:ppo_full_vec128"))
     assert d1 == d2
     assert [(s.seed, s.wind, s.env_options, s.max_time) for s in s1] == \
            [(s.seed, s.wind, s.env_options, s.max_time) for s in s2]
@@ -66,7 +68,7 @@ def test_the_default_is_no_time_cap(tmp_path) -> None:
 def test_only_flies_the_same_spec_as_the_campaign() -> None:
     cfg = cp.CampaignConfig(episodes=10, seed=2, max_time=2.5)
     _, every = cp.campaign_specs(cfg)
-    _, one = cp.campaign_specs(cp.dataclasses.replace(cfg, only=(7,)))
+    _, one = cp.campaign_specs(dataclasses.replace(cfg, only=(7,)))
     assert [s.filename for s in one] == [every[7].filename]
     with pytest.raises(ValueError, match="only"):
         cp.CampaignConfig(episodes=10, only=(10,))
@@ -76,10 +78,10 @@ def test_wall_time_sums_the_invocations(tmp_path) -> None:
     cfg = cp.CampaignConfig(episodes=2)
     path = tmp_path / "campaign.json"
     assert cp.earlier_invocations(path, cfg) == []
-    path.write_text(json.dumps({"config": cp._config_json(cfg), "wall_time_invocations_s": [10.0, 5.5]}))
+    path.write_text(json.dumps({"config": cp.config_json(cfg), "wall_time_invocations_s": [10.0, 5.5]}))
     assert cp.earlier_invocations(path, cfg) == [10.0, 5.5]
     assert cp.earlier_invocations(path, cp.CampaignConfig(episodes=3)) == []   # another campaign
-    path.write_text(json.dumps({"config": cp._config_json(cfg), "wall_time_s": 3.0, "wall_time_total_s": 12.0}))
+    path.write_text(json.dumps({"config": cp.config_json(cfg), "wall_time_s": 3.0, "wall_time_total_s": 12.0}))
     assert cp.earlier_invocations(path, cfg) == [12.0]                         # a format-/1 file's total
 
 
@@ -100,11 +102,11 @@ def test_an_exception_is_caught_and_recorded(monkeypatch) -> None:
         def factory(env):
             raise RuntimeError("solver exploded\nsecond line")
         return factory
-    monkeypatch.setattr(cp.registry, "resolve", broken)
+    monkeypatch.setattr(registry, "resolve", broken)
     res = cp.run_episode(spec)
     assert res.termination == "exception" and res.metrics["error"].startswith("RuntimeError: solver exploded (")
     assert res.solve["rss_mb"] > 0
-    row = cp._row(d, res)
+    row = cp.episode_row(d, res)
     assert row["exception"] and not row["crashed"] and row["error"]
 
 

@@ -149,7 +149,8 @@ def _overlaps(boxes) -> list[tuple[int, int]]:
 def test_plan_figure_labels_do_not_overlap_and_it_has_a_legend_of_every_surface(tmp_path):
     from wt_inspect_env.planner import plan_inspection
     from wt_inspect_env.planner.plot import plan_figure, save_plan_figure
-    from wt_inspect_env.turbine.model import TurbineSpec, build_turbine
+    from wt_inspect_env.turbine.mesh import build_turbine
+    from wt_inspect_env.turbine.spec import TurbineSpec
 
     plan = plan_inspection(build_turbine(TurbineSpec()))
     fig = plan_figure(plan)

@@ -26,7 +26,8 @@ from wt_inspect_env.task.metrics import MetricsConfig
 from wt_inspect_env.task.reference import ReferenceConfig
 from wt_inspect_env.task.spaces import ActionScaling
 from wt_inspect_env.turbine.blade_geometry import BladeShape
-from wt_inspect_env.turbine.model import MeshLoadOptions, TurbineSpec
+from wt_inspect_env.turbine.loading import MeshLoadOptions
+from wt_inspect_env.turbine.spec import TurbineSpec
 from wt_inspect_env.util.validation import _field_kinds, check_array, check_finite
 
 

@@ -229,10 +229,10 @@ def test_sb3_hook(tmp_path, monkeypatch):
         calls.append((algo, str(path)))   # a str or a resolved Path
         return HoverPolicy(env)
     monkeypatch.setitem(sys.modules, "agents.policy", types.SimpleNamespace(load_sb3_policy=load_sb3_policy))
-    res = evaluate_policy(f"sac:{model}", scenario="surface", max_time=0.2)
-    assert calls == [("sac", str(model))] and res.steps == 20
+    res = evaluate_policy(f"ppo:{model}", scenario="surface", max_time=0.2)
+    assert calls == [("ppo", str(model))] and res.steps == 20
     # resuming keys on the model's content: a retrained file is a different run
-    key = lambda: registry.fingerprint(f"sac:{model}")  # noqa: E731
+    key = lambda: registry.fingerprint(f"ppo:{model}")  # noqa: E731
     k1 = key()
     model.write_bytes(b"retrained")
     assert key() != k1

@@ -16,7 +16,7 @@ from wt_inspect_env.physics.quadrotor import get_preset
 from wt_inspect_env.physics.rate_control import Mixer, RateController, RateGains
 from wt_inspect_env.physics.sim_config import SimConfig, SubstepConstants
 from wt_inspect_env.physics.wind import GustWind
-from wt_inspect_env.turbine.model import build_turbine
+from wt_inspect_env.turbine.mesh import build_turbine
 from wt_inspect_env.world.batched_sim import BatchedQuadrotorSim
 from wt_inspect_env.world.sim import QuadrotorSim
 

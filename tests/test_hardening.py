@@ -34,7 +34,7 @@ DRIVER = textwrap.dedent('''
     if phase.startswith("run:"):            # the signal arrives as run / episode k is about to start
         k = int(phase[4:])
         if argv[0] == "campaign":
-            import wt_inspect.commands.campaign as mod
+            import wt_inspect.commands.campaign.running as mod
             name = "run_episode"
         else:
             import wt_inspect.evaluation.backends as mod

@@ -198,7 +198,7 @@ def test_registry_finds_every_policy_through_entry_points():
     from wt_inspect.evaluation import registry
     from wt_inspect_env.policy import PolicyEntry
     entries = registry.entries()
-    assert {"vtnmpc", "vtnmpc-plus", "vtnmpc-dob", "vtnmpc-later", "nmpc", "pampc", "ppo", "sac"} <= set(entries)
+    assert {"vtnmpc", "vtnmpc-plus", "vtnmpc-dob", "vtnmpc-later", "nmpc", "pampc", "ppo"} <= set(entries)
     assert all(isinstance(e, PolicyEntry) for e in entries.values())
     assert entries["ppo"].takes_argument and not entries["vtnmpc"].takes_argument
     roots = {p.name for p in registry.source_roots()}
@@ -208,7 +208,7 @@ def test_registry_finds_every_policy_through_entry_points():
 def test_code_fingerprint_covers_every_result_changing_source():
     from wt_inspect.evaluation.runner import code_sources
     names = {f.relative_to(ROOT).as_posix() for f in code_sources()}
-    for must in ("wt_inspect_env/env.py", "controllers/rti.py", "agents/policy.py", "agents/wrappers.py",
+    for must in ("wt_inspect_env/env.py", "controllers/rti/solver.py", "agents/policy.py", "agents/wrappers.py",
                  "wt_inspect/evaluation/runner.py", "wt_inspect/evaluation/scenarios.py"):
         assert must in names
     assert "wt_inspect/evaluation/report.py" not in names   # presentation only

@@ -13,7 +13,7 @@ import trimesh
 from wt_inspect import cli
 from wt_inspect.commands import bench_planner
 from wt_inspect.commands import plan as plan_cmd
-from wt_inspect_env.turbine.model import build_turbine
+from wt_inspect_env.turbine.mesh import build_turbine
 from wt_inspect_env.util.atomic_io import atomic_path
 
 

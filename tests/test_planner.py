@@ -21,7 +21,9 @@ from wt_inspect_env.planner import (
 )
 from wt_inspect_env.planner.clearance import DistanceField, closest_points_on_triangles
 from wt_inspect_env.planner.path import offset_direction
-from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
+from wt_inspect_env.turbine.loading import load_turbine_mesh
+from wt_inspect_env.turbine.mesh import build_turbine
+from wt_inspect_env.turbine.spec import TurbineSpec
 
 
 @pytest.fixture(scope="module")

@@ -51,3 +51,25 @@ def test_short_sweep_writes_its_tables_and_resumes(tmp_path, capsys):
     assert "ended: max_time" in (tmp_path / "results.md").read_text()
     assert pose_sweep.main(argv) == 0
     assert "0 flown, 2 resumed" in capsys.readouterr().out
+
+
+def test_a_mission_that_raises_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
+    """One mission raising (as the planner did for the NREL 5-MW preset at azimuth 70 before its
+    grid routing) is a row with its error; the other missions are flown and tabulated."""
+    from wt_inspect.evaluation import runner
+    real = runner.execute
+
+    def execute(spec, policy=None, **kw):
+        if spec.env_options["turbine"]["rotor_azimuth_deg"] == 50.0:
+            raise ValueError("no route here\nsecond line")
+        return real(spec, policy, **kw)
+    monkeypatch.setattr(runner, "execute", execute)
+    argv = ["--azimuths", "40:50:10", "--facings", "0", "--max-time", "1", "--out", str(tmp_path), "--jobs", "1",
+            "--no-progress"]
+    assert pose_sweep.main(argv) == 0
+    with open(tmp_path / "results.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["termination"] for r in rows] == ["max_time", "exception"]
+    md = (tmp_path / "results.md").read_text()
+    assert "azimuth 50, facing 0: ended: exception (ValueError: no route here (test_pose_sweep.py:" in md
+    assert "| 50 | - * |" in md

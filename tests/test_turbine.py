@@ -6,7 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from wt_inspect_env.turbine.model import TurbineMesh, TurbineSpec, build_turbine, load_turbine_mesh, rotation_matrix
+from wt_inspect_env.turbine.loading import load_turbine_mesh
+from wt_inspect_env.turbine.mesh import TurbineMesh, build_turbine, rotation_matrix
+from wt_inspect_env.turbine.spec import TurbineSpec
 
 
 @pytest.fixture(scope="module")
@@ -239,7 +241,7 @@ def test_an_implausibly_big_mesh_is_refused_before_planning_and_the_unit_suggest
     """Issue 33: the project's own export in millimetres, loaded without ``unit``, planned for
     minutes and then failed on a 118 km transit; a scale of 1e30 failed deep in numpy. Both are
     now one line naming the file, the unit and the size, before any work."""
-    from wt_inspect_env.turbine.model import MAX_MESH_EXTENT
+    from wt_inspect_env.turbine.spec import MAX_MESH_EXTENT
     _write(turb.mesh.triangles * 1000.0, tmp_path / "mm.stl")
     with pytest.raises(ValueError, match=r"mm\.stl.*m across with unit 'm'.*unit=\"mm\""):
         load_turbine_mesh(tmp_path / "mm.stl")

@@ -480,7 +480,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     ap.add_argument("--out", default="flights", metavar="DIR", help="run files, tlogs, summaries (default flights)")
     ap.add_argument("--system-id", type=int, default=1, help="the vehicle's MAVLink system id (default 1)")
     ap.add_argument("--arm", action="store_true", help="arm the vehicle if it is not armed")
-    ap.add_argument("--trust-model", action="store_true", help="as for evaluate: let a ppo:/sac: file run code")
+    ap.add_argument("--trust-model", action="store_true", help="as for evaluate: let a ppo: file run code")
     s = ap.add_argument_group("safety")
     s.add_argument("--fence-margin", type=float, metavar="M", help="geofence box margin around the mission (default: "
                    "the environment's working margin)")

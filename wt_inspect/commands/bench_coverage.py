@@ -61,7 +61,7 @@ def run_bench(spacing: float = 0.02, repeats: int = 2, seed: int = 0) -> dict:
     """Run the benchmark and return its summary (see module docstring)."""
     import pybullet as p
 
-    from wt_inspect_env.turbine.model import build_turbine
+    from wt_inspect_env.turbine.mesh import build_turbine
 
     if repeats < 1:
         raise ValueError(f"repeats must be >= 1, got {repeats!r}")

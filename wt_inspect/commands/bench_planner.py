@@ -18,7 +18,8 @@ import numpy as np
 
 from wt_inspect_env.planner import HeldKarp, PlannerConfig, cluster_surfaces, plan_inspection
 from wt_inspect_env.planner.path import offset_direction
-from wt_inspect_env.turbine.model import TurbineSpec, build_turbine
+from wt_inspect_env.turbine.mesh import build_turbine
+from wt_inspect_env.turbine.spec import TurbineSpec
 
 TARGET_PLAN_S = 0.5
 TARGET_ORDER_S = 0.1

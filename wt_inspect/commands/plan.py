@@ -16,7 +16,8 @@ from pathlib import Path
 
 from wt_inspect_env.planner import PlannerConfig, plan_inspection
 from wt_inspect_env.planner.config import PAPER_ROTOR_TURN_DEG, STANDOFF_MODES
-from wt_inspect_env.turbine.model import TurbineSpec, build_turbine
+from wt_inspect_env.turbine.mesh import build_turbine
+from wt_inspect_env.turbine.spec import TurbineSpec
 from wt_inspect_env.util.atomic_io import atomic_paths, check_out_dir
 from wt_inspect_env.util.figure_io import DEFAULT_FIGURE_FORMAT, FIGURE_FORMATS
 from wt_inspect_env.util.validation import coerce_config
@@ -44,7 +45,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True, metavar="DIR", help="output directory (created if missing)")
     ap.add_argument("--json", action="store_true", help="print the summary as one JSON object")
-    ap.add_argument("--no-plot", action="store_true", help="skip plan.png (rendering takes ~2 s)")
+    ap.add_argument("--no-plot", action="store_true", help="skip plan.png (rendering is the slow part)")
     ap.add_argument("--figure-format", choices=FIGURE_FORMATS, default=DEFAULT_FIGURE_FORMAT,
                     help=f"format of the plan figure (default {DEFAULT_FIGURE_FORMAT}; pdf and svg are vector)")
     t = ap.add_argument_group("turbine (defaults: the paper's Vestas V100)")

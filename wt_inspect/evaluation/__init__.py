@@ -200,7 +200,7 @@ def run_evaluation(scenario: str = "paper",
     ``ValueError`` for bad arguments (naming them) and :class:`OutputDirError` if ``out`` cannot be
     written - both before any run starts. ``figure_format``: png, pdf or svg.
     ``KeyboardInterrupt`` writes the results of the finished runs (marked incomplete) and propagates.
-    ``trust_model``: load ``ppo:``/``sac:`` model files even if that runs code from them (the
+    ``trust_model``: load ``ppo:`` model files even if that runs code from them (the
     CLI's ``--trust-model``; without it such a file is refused before any run starts).
     """
     t0 = time.perf_counter()

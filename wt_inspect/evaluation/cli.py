@@ -91,7 +91,7 @@ def build_parser(prog: str) -> argparse.ArgumentParser:
     o.add_argument("--rerun", action="store_true", default=None,
                    help="ignore finished runs in DIR/runs and run everything again")
     ap.add_argument("--trust-model", action="store_true", default=None,
-                    help="load ppo:/sac: model files even if that runs code stored in them (refused otherwise); "
+                    help="load ppo: model files even if that runs code stored in them (refused otherwise); "
                          "only for files you made yourself or fully trust")
     return ap
 

@@ -243,7 +243,9 @@ def _blade_layout(a: dict[str, np.ndarray], spec_env: dict) -> tuple[np.ndarray,
     before they were stored - from the turbine rebuilt from the run's options (same numbering)."""
     if "triangle_face" in a:
         return a["triangle_blade"], a["triangle_face"], a["rotor_center"]
-    from wt_inspect_env.turbine.model import TurbineSpec, build_turbine, load_turbine_mesh
+    from wt_inspect_env.turbine.loading import load_turbine_mesh
+    from wt_inspect_env.turbine.mesh import build_turbine
+    from wt_inspect_env.turbine.spec import TurbineSpec
     mesh = spec_env.get("turbine_mesh")
     turb = load_turbine_mesh(mesh) if mesh else build_turbine(TurbineSpec(**(spec_env.get("turbine") or {})))
     return turb.triangle_blade, turb.triangle_face, turb.rotor_center

@@ -85,15 +85,15 @@ def mesh_clearance(positions: Any, meshes: Sequence[Any], geometry: Any | None =
     (M, 3, 3) or objects with ``.triangles``, ``geometry`` (N,) the index of each sample's mesh
     (default: all the first). Non-finite positions give NaN.
 
-    Every point gets :meth:`MeshProximity.distance` (vectorised after the flight: ~5-20 us a
-    point, where a call per control step would cost ~80 us; with 24 candidate triangles instead
-    of the MPCs' 12, which costs the same vectorised and was exact on every sample of a paper
+    Every point gets :meth:`MeshProximity.distance` (vectorised after the flight, far cheaper per
+    point than a call per control step; with 24 candidate triangles instead of the MPCs' 12, which
+    costs the same vectorised and was exact on every sample of a paper
     mission slice where 12 were up to 2 cm high on 0.3 % of them). That distance ``d`` is realised by a mesh
     triangle, so it is never below the exact one, and at most the largest triangle radius ``rho``
     above it (the nearest triangle's centroid is within ``d_exact + rho``, so a missed triangle
     only means a candidate at most that far was taken). The minimum is at most ``R = max(min d,
     d_min)``, so only points that may lie closer than ``R`` matter; those are measured again with
-    :meth:`MeshProximity.distance_within` (exact below its radius; ~50-100 us a point, so only
+    :meth:`MeshProximity.distance_within` (exact below its radius and several times dearer, so only
     where a lower bound does not rule them out: :func:`_exact_where_it_matters`). So the minimum
     and the samples below ``d_min`` are exact, the others exact on meshes of similar-sized
     triangles (this project's: checked against a brute force in the tests) and never below the

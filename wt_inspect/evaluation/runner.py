@@ -462,6 +462,33 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
                      code=code_fingerprint())
 
 
+def exception_result(spec: RunSpec, exc: BaseException, wall_time_s: float, steps: int = 0,
+                     solve: Mapping[str, float] | None = None) -> RunResult:
+    """The result of a run that raised: ``termination="exception"``, the exception's type, first
+    line and where it was raised in ``metrics["error"]`` (what a study that goes on after a failing
+    run records for it)."""
+    import traceback
+    where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
+    text = str(exc).strip()
+    msg = f"{type(exc).__name__}: {text.splitlines()[0] if text else ''}"
+    if where is not None:
+        msg += f" ({Path(where.filename).name}:{where.lineno})"
+    return RunResult(spec=spec, metrics={"error": msg}, termination="exception", mission_complete=False,
+                     steps=steps, sim_time_s=math.nan, wall_time_s=wall_time_s, solve=dict(solve or {}),
+                     d_ref=math.nan, safety_margin=math.nan)
+
+
+def execute_or_record(spec: RunSpec, policy: Any = None, *, record: bool = True,
+                      progress: ProgressCallback | None = None) -> RunResult:
+    """:func:`execute`, with an exception returned as the run's result (:func:`exception_result`)
+    instead of raised: the backends' ``task`` for studies where one failing run must not end the rest."""
+    t0 = time.perf_counter()
+    try:
+        return execute(spec, policy, record=record, progress=progress)
+    except Exception as exc:   # recorded in the result; the study goes on
+        return exception_result(spec, exc, time.perf_counter() - t0)
+
+
 def execute(spec: RunSpec, policy: Any = None, *, record: bool = True,
             progress: ProgressCallback | None = None) -> RunResult:
     """Build the environment of ``spec`` and fly it with ``policy`` - an object with the common

@@ -96,14 +96,14 @@ def row(result: Any, turbine: str) -> dict[str, Any]:
             "clearance_min_m": m.get("clearance_min_m"), "time_below_d_min_s": m.get("time_below_d_min_s"),
             "collisions": m.get("collisions"), "stalls": m.get("stalls"), "flight_time_s": m.get("flight_time_s"),
             "termination": result.termination, "complete": bool(result.mission_complete),
-            "file": result.spec.filename}
+            "file": result.spec.filename, "error": m.get("error", "")}
 
 
 def shortfalls(r: Mapping[str, Any], d_min: float) -> list[str]:
     """Why a mission misses the sweep's targets (empty: it meets them)."""
     out = []
     if not r["complete"]:
-        out.append(f"ended: {r['termination']}")
+        out.append(f"ended: {r['termination']}" + (f" ({r['error']})" if r.get("error") else ""))
     if r["coverage"] is not None and r["coverage"] < COVERAGE_TARGET:
         out.append(f"coverage {100 * r['coverage']:.1f} %")
     if r["collisions"]:
@@ -128,8 +128,8 @@ def markdown(rows: Sequence[Mapping[str, Any]], command: str, d_min: float) -> s
     for c in dict.fromkeys(r["controller"] for r in rows):
         mine = [r for r in rows if r["controller"] == c]
         ok = [r for r in mine if not shortfalls(r, d_min)]
-        cov = sorted(float(r["coverage"]) for r in mine)
-        clr = min(float(r["clearance_min_m"]) for r in mine)
+        cov = sorted(float(r["coverage"]) for r in mine if r["coverage"] is not None) or [math.nan]
+        clr = min((float(r["clearance_min_m"]) for r in mine if r["clearance_min_m"] is not None), default=math.nan)
         done = sum(r["complete"] for r in mine)
         hits = sum(int(r["collisions"] or 0) for r in mine)
         stalls = sum(int(r["stalls"] or 0) for r in mine)
@@ -146,8 +146,8 @@ def markdown(rows: Sequence[Mapping[str, Any]], command: str, d_min: float) -> s
             cells = []
             for f in facings:
                 hit = [r for r in mine if r["azimuth_deg"] == az and r["facing_deg"] == f]
-                cells.append(f"{100 * hit[0]['coverage']:.1f}" + ("" if not shortfalls(hit[0], d_min) else " *")
-                             if hit else "-")
+                cov_cell = "-" if not hit or hit[0]["coverage"] is None else f"{100 * hit[0]['coverage']:.1f}"
+                cells.append(cov_cell + ("" if not hit or not shortfalls(hit[0], d_min) else " *"))
             lines.append(f"| {az:g} | " + " | ".join(cells) + " |")
         bad = [r for r in mine if shortfalls(r, d_min)]
         lines += ["", "Missions marked * (short of a target):" if bad else "Every mission meets every target.", ""]
@@ -173,8 +173,10 @@ def figure(rows: Sequence[Mapping[str, Any]], path: Path) -> Path:
         fa = sorted({r["facing_deg"] for r in mine})
         grid = np.full((len(az), len(fa)), np.nan)
         for r in mine:
-            grid[az.index(r["azimuth_deg"]), fa.index(r["facing_deg"])] = 100 * float(r["coverage"])
-        im = ax.imshow(grid, aspect="auto", origin="lower", vmin=min(90.0, float(np.nanmin(grid))), vmax=100.0,
+            if r["coverage"] is not None:
+                grid[az.index(r["azimuth_deg"]), fa.index(r["facing_deg"])] = 100 * float(r["coverage"])
+        low = float(np.nanmin(grid)) if np.isfinite(grid).any() else 90.0
+        im = ax.imshow(grid, aspect="auto", origin="lower", vmin=min(90.0, low), vmax=100.0,
                        cmap="viridis")
         ax.set_xticks(range(len(fa)), [f"{f:g}" for f in fa])
         ax.set_yticks(range(len(az)), [f"{a:g}" for a in az])
@@ -198,6 +200,7 @@ def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
 
     from ..evaluation import prepare_out_dir, resume_runs, save_run
     from ..evaluation.backends import check_jobs, run_specs
+    from ..evaluation.runner import execute_or_record
     jobs = check_jobs(args.jobs)
     out = prepare_out_dir(args.out)
     runs = out / "runs"
@@ -208,12 +211,15 @@ def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
         res.arrays = {}
         done[res.spec.filename] = res
 
-    run_specs("local", todo, finished, jobs=jobs, progress=not args.no_progress)
+    # a mission that raises (e.g. a turbine the planner cannot route) is recorded, not the end of the sweep
+    run_specs("local", todo, finished, jobs=jobs, progress=not args.no_progress, task=execute_or_record)
     rows = [row(done[s.filename], args.turbine) for s in specs]
-    d_min = float(done[specs[0].filename].metrics["d_min_m"])
+    from wt_inspect_env.planner.config import D_MIN_RATIO
+    d_min = next((float(done[s.filename].metrics["d_min_m"]) for s in specs
+                  if "d_min_m" in done[s.filename].metrics), D_MIN_RATIO * 7.0)
     tmp = out / "results.csv.tmp"
     with open(tmp, "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=FIELDS)
+        w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
         w.writeheader()
         w.writerows(rows)
     tmp.replace(out / "results.csv")

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..turbine.model import TurbineMesh, area_moments, components, touching_pairs
+from ..turbine.mesh import TurbineMesh, area_moments, components, touching_pairs
 from .clearance import closest_points_on_triangles
 
 

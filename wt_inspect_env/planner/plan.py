@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from ..turbine.model import TurbineMesh, rotation_matrix
+from ..turbine.mesh import TurbineMesh, rotation_matrix
 from ..util.atomic_io import atomic_path
 from .clearance import Clearance, DistanceField, detour_frame, detour_offsets
 from .clustering import Surface, cluster_surfaces, describe_surface

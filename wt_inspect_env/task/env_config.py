@@ -18,7 +18,7 @@ from ..physics.quadrotor import QuadrotorParams, get_preset
 from ..physics.sim_config import INTEGRATORS
 from ..planner.config import CLEARANCE_BRAKE, D_MIN_RATIO, PAPER_ROTOR_TURN_DEG
 from ..scene.camera import CameraConfig
-from ..turbine.model import TurbineSpec
+from ..turbine.spec import TurbineSpec
 from ..util.validation import (
     check_array,
     check_choice,
@@ -118,7 +118,7 @@ class EnvConfig:
         which, counted in tour order among the phase-1 ones (0 = the first the tour visits).
     turbine: a :class:`TurbineSpec` or dict of its fields (``{"preset": "nrel-5mw"}`` for a named
         turbine); ``turbine_mesh``: a mesh file to load instead, or a dict of
-        :class:`~wt_inspect_env.turbine.model.MeshLoadOptions` (``path``, ``unit``, ``up_axis``, ...).
+        :class:`~wt_inspect_env.turbine.loading.MeshLoadOptions` (``path``, ``unit``, ``up_axis``, ...).
     rotor_turn_deg: the rotor turn between phase 1 and 2 [deg]; ``None``: the planner chooses the
         rotor positions (none, one or two turns) with the least flight, which any rotor azimuth
         needs (``mission.turbines`` then holds one turbine per position); ``"auto"`` (default): the

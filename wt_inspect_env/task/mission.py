@@ -25,7 +25,8 @@ import trimesh
 
 from ..planner import InspectionPlan, PlannerConfig, plan_inspection
 from ..planner.clearance import DistanceField
-from ..turbine.model import TurbineMesh, build_turbine, load_turbine_mesh
+from ..turbine.loading import load_turbine_mesh
+from ..turbine.mesh import TurbineMesh, build_turbine
 from ..util.validation import check_unknown_options
 from .env_config import EnvConfig
 from .reference import standoff_poses

@@ -1,36 +1,6 @@
-"""A generic real-time-iteration (RTI) NMPC core for nonlinear-least-squares optimal control.
+"""The real-time-iteration solver (:class:`RTISolver`), its options and per-step statistics.
 
-Problem (one instance per control step; parameters ``p`` constant over the horizon, or one column
-``p_k`` per stage k = 0..N when the caller has stage-wise data, e.g. the clearance constraint's
-nearest mesh points along the predicted trajectory)::
-
-    min   1/2 sum_k r(x_k, u_k, p)^T W r(x_k, u_k, p) + 1/2 r_N(x_N, p)^T W_N r_N(x_N, p)
-    s.t.  x_0 = x_measured
-          x_{k+1} = F(x_k, u_k, p)                     (multiple shooting, e.g. RK4)
-          u_lower <= u_k <= u_upper
-          x_lower <= x_k <= x_upper,   k = 1..N          (optional)
-          h_lower <= h(x_k, u_k, p) <= h_upper            (optional path constraints)
-
-Residuals are written so that their reference value is zero; W and W_N are diagonal (vectors).
-
-Method (Diehl's real-time iteration): Gauss-Newton Hessian J^T W J from the residual Jacobians,
-one structured QP per control step in the *step* dw around the current (shifted) guess w:
-
-* preparation (:meth:`RTISolver.prepare`): linearise at w for the new parameters - evaluate the
-  compiled QP-data function (stage Hessians, gradients, dynamics Jacobians, defects), needs no
-  measurement;
-* feedback (:meth:`RTISolver.feedback`): fix dx_0 = x_measured - x_0 through the variable bounds
-  and call HPIPM; nothing else, so the latency from measurement to command is the QP alone;
-* :meth:`RTISolver.shift` moves the plan one stage forward as the next warm start.
-
-HPIPM (through CasADi) receives the variables in stage order [x0 u0 x1 u1 ... xN], the
-constraints as [dyn_0 path_0 dyn_1 path_1 ...] with dynamics rows A_k dx_k + B_k du_k - dx_{k+1}
-and the stage sizes N, nx, nu, ng given explicitly (no structure detection).
-
-A failed or non-finite QP is never applied: the solver falls back to the shifted previous plan,
-then - after N consecutive failures - to ``fallback_input`` (hover), and reports the status.
-:meth:`RTISolver.solve` iterates the same QPs to convergence (full Gauss-Newton SQP), which tests
-compare with IPOPT (:class:`IpoptOCPSolver`, also the converged baseline of the benchmark).
+See the package docstring for the method.
 """
 from __future__ import annotations
 
@@ -45,181 +15,15 @@ import numpy as np
 
 from wt_inspect_env.util.validation import check_array, check_choice, check_field_types, check_positive
 
-from .codegen import CompiledFunction, compile_function, uncompiled
+from ..codegen import CompiledFunction, compile_function, uncompiled
+from .ocp import BOUND_INF, OCP
+from .qp_data import build_qp_data_function, build_stage_qp_data_function, stage_parameter_matrix
 
-BOUND_INF = 1e8  # stands for an infinite bound in the QP
 QP_SOLVERS = ("casadi", "hpipm")
 
 HPIPM_STATUS: dict[int, str] = {
     0: "SUCCESS", 1: "MAX_ITER", 2: "MIN_STEP", 3: "NAN_SOL", 4: "INCONSISTENT_EQ",
 }
-
-
-def _fun_sizes(name: str, fun: ca.Function, n_in: int) -> list[int]:
-    """Input sizes of a CasADi function, checking that every input and output is a vector."""
-    if not isinstance(fun, ca.Function):
-        raise ValueError(f"{name} must be a casadi.Function, got {type(fun).__name__}")
-    if fun.n_in() != n_in or fun.n_out() != 1:
-        raise ValueError(f"{name} must have {n_in} inputs and 1 output, "
-                         f"got {fun.n_in()} inputs and {fun.n_out()} outputs")
-    sizes = []
-    for i in range(n_in):
-        sp = fun.sparsity_in(i)
-        if sp.size2() != 1:
-            raise ValueError(f"{name} input {i} must be a column vector, got shape {sp.shape}")
-        sizes.append(sp.size1())
-    if fun.sparsity_out(0).size2() != 1:
-        raise ValueError(f"{name} output must be a column vector, got {fun.sparsity_out(0).shape}")
-    return sizes
-
-
-@dataclass(frozen=True)
-class OCP:
-    """A nonlinear-least-squares OCP with constant parameters (see the module docstring).
-
-    ``dynamics(x, u, p) -> x_next`` (the discrete model over ``dt``), ``stage_residual(x, u, p)``
-    and ``terminal_residual(x, p)`` are CasADi functions whose residuals are zero at the
-    reference. ``fallback_input`` is applied when no usable plan is left (hover for a drone).
-    The optional state bounds apply to x_1..x_N (x_0 is the measurement); entries may be +-inf.
-    """
-
-    name: str
-    dynamics: ca.Function
-    stage_residual: ca.Function
-    terminal_residual: ca.Function
-    horizon: int
-    dt: float
-    u_lower: np.ndarray
-    u_upper: np.ndarray
-    fallback_input: np.ndarray
-    x_lower: np.ndarray | None = None
-    x_upper: np.ndarray | None = None
-    path_constraint: ca.Function | None = None
-    h_lower: np.ndarray | None = None
-    h_upper: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if not isinstance(self.name, str) or not self.name.isidentifier():
-            raise ValueError(f"name must be a C identifier, got {self.name!r}")
-        if isinstance(self.horizon, bool) or not isinstance(self.horizon, (int, np.integer)) \
-                or self.horizon < 1:
-            raise ValueError(f"horizon must be a positive integer, got {self.horizon!r}")
-        check_positive("dt", self.dt)
-        nx, nu, npar = _fun_sizes("dynamics", self.dynamics, 3)
-        if self.dynamics.sparsity_out(0).size1() != nx:
-            raise ValueError(f"dynamics must map x ({nx}) to x_next of the same size, got "
-                             f"{self.dynamics.sparsity_out(0).size1()}")
-        if _fun_sizes("stage_residual", self.stage_residual, 3) != [nx, nu, npar]:
-            raise ValueError(f"stage_residual inputs must have sizes (nx, nu, np) = "
-                             f"({nx}, {nu}, {npar})")
-        if _fun_sizes("terminal_residual", self.terminal_residual, 2) != [nx, npar]:
-            raise ValueError(f"terminal_residual inputs must have sizes (nx, np) = ({nx}, {npar})")
-        lo = check_array("u_lower", self.u_lower, (nu,))
-        hi = check_array("u_upper", self.u_upper, (nu,))
-        if np.any(lo > hi):
-            raise ValueError(f"u_lower must not exceed u_upper, got {lo} > {hi}")
-        fb = check_array("fallback_input", self.fallback_input, (nu,))
-        if np.any(fb < lo) or np.any(fb > hi):
-            raise ValueError(f"fallback_input must lie within the input bounds, got {fb}")
-        object.__setattr__(self, "u_lower", lo)
-        object.__setattr__(self, "u_upper", hi)
-        object.__setattr__(self, "fallback_input", fb)
-        for fname, default in (("x_lower", -np.inf), ("x_upper", np.inf)):
-            val = getattr(self, fname)
-            arr = np.full(nx, default) if val is None else np.asarray(val, dtype=float)
-            if arr.shape != (nx,) or np.any(np.isnan(arr)):
-                raise ValueError(f"{fname} must be {nx} numbers (+-inf allowed), got {val!r}")
-            object.__setattr__(self, fname, arr)
-        if np.any(self.x_lower > self.x_upper):
-            raise ValueError("x_lower must not exceed x_upper")
-        if self.path_constraint is not None:
-            if _fun_sizes("path_constraint", self.path_constraint, 3) != [nx, nu, npar]:
-                raise ValueError("path_constraint inputs must have sizes (nx, nu, np)")
-            nh = self.path_constraint.sparsity_out(0).size1()
-            for fname in ("h_lower", "h_upper"):
-                val = getattr(self, fname)
-                arr = np.asarray(val, dtype=float) if val is not None else None
-                if arr is None or arr.shape != (nh,) or np.any(np.isnan(arr)):
-                    raise ValueError(f"{fname} must be {nh} numbers (+-inf allowed), got {val!r}")
-                object.__setattr__(self, fname, arr)
-            if np.any(self.h_lower > self.h_upper):
-                raise ValueError("h_lower must not exceed h_upper")
-        # sizes as plain ints: the properties below are on the hot path
-        nh = 0 if self.path_constraint is None else self.path_constraint.sparsity_out(0).size1()
-        object.__setattr__(self, "_dims", (
-            nx, nu, npar, self.stage_residual.sparsity_out(0).size1(),
-            self.terminal_residual.sparsity_out(0).size1(), nh))
-
-    # ---- sizes -------------------------------------------------------------------------------
-    @property
-    def nx(self) -> int:
-        """Number of states."""
-        return self._dims[0]
-
-    @property
-    def nu(self) -> int:
-        """Number of inputs."""
-        return self._dims[1]
-
-    @property
-    def np(self) -> int:
-        """Number of online parameters per solve."""
-        return self._dims[2]
-
-    @property
-    def ny(self) -> int:
-        """Length of the stage residual."""
-        return self._dims[3]
-
-    @property
-    def ny_terminal(self) -> int:
-        """Length of the terminal residual."""
-        return self._dims[4]
-
-    @property
-    def nh(self) -> int:
-        """Number of path constraints per stage."""
-        return self._dims[5]
-
-    @property
-    def n_vars(self) -> int:
-        """Length of the stage-ordered decision vector [x0 u0 ... xN]."""
-        return self.horizon * (self.nx + self.nu) + self.nx
-
-    @property
-    def n_cons(self) -> int:
-        """Number of constraints: the dynamics and the path constraints of every stage."""
-        return self.horizon * (self.nx + self.nh)
-
-    # ---- layout helpers ----------------------------------------------------------------------
-    def pack(self, xs: np.ndarray, us: np.ndarray) -> np.ndarray:
-        """Stage-ordered vector [x0 u0 x1 u1 ... xN] from (N+1, nx) states and (N, nu) inputs."""
-        N, nx, nu = self.horizon, self.nx, self.nu
-        w = np.empty(self.n_vars)
-        body = w[:N * (nx + nu)].reshape(N, nx + nu)
-        body[:, :nx] = xs[:N]
-        body[:, nx:] = us
-        w[N * (nx + nu):] = xs[N]
-        return w
-
-    def unpack(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(states (N+1, nx), inputs (N, nu)) views of a stage-ordered vector."""
-        N, nx, nu = self.horizon, self.nx, self.nu
-        body = w[:N * (nx + nu)].reshape(N, nx + nu)
-        xs = np.vstack([body[:, :nx], w[N * (nx + nu):][None, :]])
-        return xs, body[:, nx:].copy()
-
-    def check_weights(self, stage_weights, terminal_weights) -> tuple[np.ndarray, np.ndarray]:
-        """Validated copies of the diagonal weights: finite, non-negative, right length."""
-        out = []
-        for fname, val, n in (("stage_weights", stage_weights, self.ny),
-                              ("terminal_weights", terminal_weights, self.ny_terminal)):
-            arr = check_array(fname, val, (n,))
-            bad = np.flatnonzero(arr < 0)
-            if bad.size:
-                raise ValueError(f"{fname}[{bad[0]}] must be non-negative, got {arr[bad[0]]!r}")
-            out.append(arr.copy())
-        return out[0], out[1]
 
 
 @dataclass(frozen=True)
@@ -229,12 +33,12 @@ class RTIOptions:
     steps, the converged point is unchanged); ``compiled`` selects generated C for the QP data.
     ``qp_solver``: ``"casadi"`` calls HPIPM through CasADi's ``conic`` plugin; ``"hpipm"`` calls
     it directly (:mod:`controllers.hpipm_direct`: memory allocated once, only finite bounds, x_0
-    eliminated, the QP loaded in the preparation phase) - OCPs without path constraints only;
-    where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
+    eliminated, the QP loaded in the preparation phase; path constraints as HPIPM's general
+    constraints); where the direct path cannot be built (no compiler, no libhpipm) it warns and uses CasADi's.
     ``qp_mu0``: HPIPM's initial barrier parameter (None: the ``qp_mode`` preset's, 10 for
-    ``speed_abs``). 1.0 is acados' value; measured on the VT-NMPC it needs 2
-    interior-point iterations instead of 3 and lands closer to the converged QP solution when
-    rate bounds are active (1.4e-4 against 2.3e-3 from a tight solve).
+    ``speed_abs``). 1.0 is acados' value: on the VT-NMPC it needs fewer interior-point
+    iterations and lands closer to the converged QP solution when rate bounds are active
+    (``wt-inspect bench solver``).
     ``tangential_predictor`` (with ``qp_solver="hpipm"``): the preparation also solves the QP for
     the state the plan predicts and the solution's gains with respect to x_0 with its active input
     bounds held (a Riccati recursion on the free inputs); the feedback is then that affine map of
@@ -298,159 +102,6 @@ class SolveStats:
     def as_dict(self) -> dict[str, Any]:
         """The statistics as a plain dict (for logs and records)."""
         return dict(self.__dict__)
-
-
-def _gauss_newton_stage(ocp: OCP, regularization: float) -> dict[str, Any]:
-    """Symbols and Gauss-Newton data of one stage (shared by both QP-data layouts): Hessian
-    H = J^T W J (+ regularization I), gradient g = J^T W r, dynamics Jacobian AB = d F / d[x, u],
-    the multiple-shooting gap x_next - F and the stage cost, for z = [x, u]."""
-    nx, nu = ocp.nx, ocp.nu
-    x, u, xn = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("x_next", nx)
-    p, W = ca.SX.sym("p", ocp.np), ca.SX.sym("W", ocp.ny)
-    z = ca.vertcat(x, u)
-    r = ocp.stage_residual(x, u, p)
-    J = ca.jacobian(r, z)
-    WJ = ca.diag(W) @ J
-    H = J.T @ WJ
-    if regularization > 0:
-        H = H + regularization * ca.SX.eye(nx + nu)
-    xnext = ocp.dynamics(x, u, p)
-    return {"x": x, "u": u, "x_next": xn, "p": p, "W": W, "z": z, "H": H, "g": WJ.T @ r,
-            "AB": ca.jacobian(xnext, z), "neg_defect": xn - xnext, "cost": 0.5 * ca.dot(W * r, r)}
-
-
-def _gauss_newton_terminal(ocp: OCP, regularization: float) -> ca.Function:
-    """``(x_N, p, W_N) -> (H_N, g_N, cost_N)`` of the terminal residual."""
-    nx = ocp.nx
-    xN, p, WN = ca.SX.sym("xN", nx), ca.SX.sym("p", ocp.np), ca.SX.sym("WN", ocp.ny_terminal)
-    rN = ocp.terminal_residual(xN, p)
-    JN = ca.jacobian(rN, xN)
-    WJN = ca.diag(WN) @ JN
-    HN = JN.T @ WJN
-    if regularization > 0:
-        HN = HN + regularization * ca.SX.eye(nx)
-    return ca.Function(f"{ocp.name}_terminal", [xN, p, WN], [HN, WJN.T @ rN, 0.5 * ca.dot(WN * rN, rN)],
-                       ["xN", "p", "WN"], ["HN", "gN", "costN"])
-
-
-def _horizon_symbols(ocp: OCP) -> dict[str, Any]:
-    """MX inputs (w, P, W, W_N) of a QP-data function and the stage-wise views of w and P.
-
-    ``P`` holds one parameter column per stage (np x (N+1), the terminal stage's last): a caller
-    with constant parameters repeats them (:meth:`RTISolver.prepare` does), which evaluates every
-    stage on the same numbers as before, bit for bit."""
-    N, nx, nz = ocp.horizon, ocp.nx, ocp.nx + ocp.nu
-    w = ca.MX.sym("w", ocp.n_vars)
-    body = ca.reshape(w[:N * nz], nz, N)
-    wN = w[N * nz:]
-    P = ca.MX.sym("p", ocp.np, N + 1)
-    return {"w": w, "p": P, "Ps": P[:, :N], "pN": P[:, N], "W": ca.MX.sym("W", ocp.ny),
-            "WN": ca.MX.sym("WN", ocp.ny_terminal), "Xs": body[:nx, :], "Us": body[nx:, :], "wN": wN,
-            "Xnext": ca.horzcat(body[:nx, 1:], wN) if N > 1 else wN}
-
-
-def stage_parameter_matrix(ocp: OCP, params: Any) -> np.ndarray:
-    """Parameters as an (N+1, np) array, one row per stage: ``(np,)`` is repeated over the
-    horizon, ``(N+1, np)`` taken as given; finite, or a ValueError naming ``params``."""
-    arr = np.asarray(params, dtype=float) if not isinstance(params, np.ndarray) else params
-    if arr.ndim == 1:
-        v = check_array("params", arr, (ocp.np,))
-        return np.broadcast_to(v, (ocp.horizon + 1, ocp.np))
-    return check_array("params", arr, (ocp.horizon + 1, ocp.np))
-
-
-def build_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function:
-    """The preparation-phase function ``(w, p, W, W_N) -> (H, g, A, lba, uba, cost)``.
-
-    ``H`` and ``A`` are sparse with HPIPM's stage structure; ``g`` is the Gauss-Newton gradient
-    J^T W r; ``lba``/``uba`` hold minus the multiple-shooting defects (dynamics rows) and the path
-    constraint margins; ``cost`` the objective at ``w``. Stages are evaluated by one SX stage
-    function mapped over the horizon, so the generated C is a loop rather than N copies.
-    """
-    N, nx, nu, nh = ocp.horizon, ocp.nx, ocp.nu, ocp.nh
-    nz = nx + nu
-    st = _gauss_newton_stage(ocp, regularization)
-    outs = [st["H"], st["g"], st["AB"], st["neg_defect"], st["cost"]]
-    names = ["H", "g", "AB", "neg_defect", "cost"]
-    if nh:
-        hval = ocp.path_constraint(st["x"], st["u"], st["p"])
-        outs += [ca.jacobian(hval, st["z"]), hval]
-        names += ["CD", "h"]
-    stage = ca.Function(f"{ocp.name}_stage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]], outs,
-                        ["x", "u", "x_next", "p", "W"], names)
-    terminal = _gauss_newton_terminal(ocp, regularization)
-
-    # -- whole horizon, MX with a mapped stage ---------------------------------------------------
-    m = _horizon_symbols(ocp)
-    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
-    Hs, gs, ABs, ndefs, costs = res[:5]
-    HNv, gNv, costN = terminal(m["wN"], m["pN"], m["WN"])
-
-    H_full = ca.diagcat(*ca.horzsplit(Hs, nz), HNv)
-    g_full = ca.vertcat(ca.vec(gs), gNv)
-    if nh:
-        CDs, hs = res[5], res[6]
-        blocks = [ca.vertcat(ab, cd) for ab, cd in zip(ca.horzsplit(ABs, nz), ca.horzsplit(CDs, nz))]
-        h_lo = ca.DM(np.clip(ocp.h_lower, -BOUND_INF, BOUND_INF))
-        h_hi = ca.DM(np.clip(ocp.h_upper, -BOUND_INF, BOUND_INF))
-        lo = ca.vec(ca.vertcat(ndefs, ca.repmat(h_lo, 1, N) - hs))
-        hi = ca.vec(ca.vertcat(ndefs, ca.repmat(h_hi, 1, N) - hs))
-    else:
-        blocks = ca.horzsplit(ABs, nz)
-        lo = hi = ca.vec(ndefs)
-    A_stages = ca.horzcat(ca.diagcat(*blocks), ca.MX(ocp.n_cons, nx))
-    A_full = A_stages + ca.MX(_minus_identity_pattern(ocp))
-    cost_total = ca.sum2(costs) + costN
-    return ca.Function(f"{ocp.name}_qpdata", [m["w"], m["p"], m["W"], m["WN"]],
-                       [H_full, ca.densify(g_full), A_full, ca.densify(lo), ca.densify(hi),
-                        ca.densify(cost_total)],
-                       ["w", "p", "W", "WN"], ["H", "g", "A", "lba", "uba", "cost"])
-
-
-def build_stage_qp_data_function(ocp: OCP, regularization: float = 0.0) -> ca.Function:
-    """The preparation-phase function for :mod:`controllers.hpipm_direct`:
-    ``(w, p, W, W_N) -> (Q, S, R, q, r, A, B, b, cost)`` as dense per-stage blocks, each output a
-    horizontal concatenation of the stages' (column-major) blocks: Q (nx, nx (N+1)) with the
-    terminal Hessian last, S (nu, nx N), R (nu, nu N), q (nx, N+1), r (nu, N), dynamics
-    x_{k+1} = A x_k + B u_k + b with A (nx, nx N), B (nx, nu N) and the defect b (nx, N). The same
-    Gauss-Newton data as :func:`build_qp_data_function`, laid out as HPIPM's setters take them.
-    With path constraints, four more outputs: their Jacobians C (nh, nx N) and D (nh, nu N) and the
-    step's bounds lg = h_lower - h, ug = h_upper - h (nh, N; infinite sides at +-BOUND_INF)."""
-    N, nx, nh = ocp.horizon, ocp.nx, ocp.nh
-    st = _gauss_newton_stage(ocp, regularization)
-    H, g, AB = st["H"], st["g"], st["AB"]
-    outs = [H[:nx, :nx], H[nx:, :nx], H[nx:, nx:], g[:nx], g[nx:], AB[:, :nx], AB[:, nx:], -st["neg_defect"],
-            st["cost"]]
-    if nh:
-        hval = ocp.path_constraint(st["x"], st["u"], st["p"])
-        h_lo = ca.DM(np.clip(ocp.h_lower, -BOUND_INF, BOUND_INF))
-        h_hi = ca.DM(np.clip(ocp.h_upper, -BOUND_INF, BOUND_INF))
-        outs += [ca.jacobian(hval, st["x"]), ca.jacobian(hval, st["u"]), h_lo - hval, h_hi - hval]
-    stage = ca.Function(f"{ocp.name}_sstage", [st["x"], st["u"], st["x_next"], st["p"], st["W"]], outs)
-    terminal = _gauss_newton_terminal(ocp, regularization)
-    m = _horizon_symbols(ocp)
-    res = stage.map(N, "serial")(m["Xs"], m["Us"], m["Xnext"], m["Ps"], m["W"])
-    Q, S, R, q, rr, A, B, b, costs = res[:9]
-    QN, qN, costN = terminal(m["wN"], m["pN"], m["WN"])
-    outs = [ca.horzcat(Q, QN), S, R, ca.horzcat(q, qN), rr, A, B, b, ca.sum2(costs) + costN]
-    names = ["Q", "S", "R", "q", "r", "A", "B", "b", "cost"]
-    if nh:
-        outs += list(res[9:13])
-        names += ["C", "D", "lg", "ug"]
-    return ca.Function(f"{ocp.name}_sqpdata", [m["w"], m["p"], m["W"], m["WN"]], [ca.densify(o) for o in outs],
-                       ["w", "p", "W", "WN"], names)
-
-
-def _minus_identity_pattern(ocp: OCP) -> ca.DM:
-    """The constant -I blocks coupling dyn_k rows to x_{k+1} (sparse DM, na x n_vars)."""
-    N, nx, nz, nh = ocp.horizon, ocp.nx, ocp.nx + ocp.nu, ocp.nh
-    rows, cols = [], []
-    for k in range(N):
-        for i in range(nx):
-            rows.append(k * (nx + nh) + i)
-            cols.append((k + 1) * nz + i)
-    sp = ca.Sparsity.triplet(ocp.n_cons, ocp.n_vars, rows, cols)
-    return ca.DM(sp, -1.0)
 
 
 class RTISolver:
@@ -557,7 +208,7 @@ class RTISolver:
     def _setup_direct(self, ocp: OCP) -> None:
         """The direct HPIPM path (:mod:`controllers.hpipm_direct`); warns and keeps CasADi's
         plugin where it cannot be built."""
-        from .hpipm_direct import HpipmQP
+        from ..hpipm_direct import HpipmQP
         finite = np.flatnonzero(np.isfinite(ocp.x_lower) | np.isfinite(ocp.x_upper))
         try:
             qp = HpipmQP(ocp.horizon, ocp.nx, ocp.nu, finite, mode=self.options.qp_mode,
@@ -865,125 +516,3 @@ class RTISolver:
         out = self._qp_fun.call([w, self._param_arg(params), self._W, self._WN])
         names = ("H", "g", "A", "lba", "uba", "cost")
         return {n: np.asarray(ca.DM(v).full()) for n, v in zip(names, out)}
-
-
-class IpoptOCPSolver:
-    """The same OCP solved to convergence by CasADi + IPOPT, warm-started from the shifted
-    previous solution (primal and dual). Reference for tests and the benchmark's baseline."""
-
-    def __init__(self, ocp: OCP, stage_weights, terminal_weights, tol: float = 1e-8,
-                 max_iter: int = 200) -> None:
-        self.ocp = ocp
-        W, WN = ocp.check_weights(stage_weights, terminal_weights)
-        N, nx, nu = ocp.horizon, ocp.nx, ocp.nu
-        nz = nx + nu
-        w = ca.SX.sym("w", ocp.n_vars)
-        P = ca.SX.sym("p", ocp.np, N + 1)     # one parameter column per stage, as the RTI solver's
-        obj = 0
-        cons = []
-        for k in range(N):
-            xk, uk = w[k * nz:k * nz + nx], w[k * nz + nx:(k + 1) * nz]
-            xk1 = w[(k + 1) * nz:(k + 1) * nz + nx]
-            p = P[:, k]
-            r = ocp.stage_residual(xk, uk, p)
-            obj += 0.5 * ca.dot(ca.DM(W) * r, r)
-            cons.append(ocp.dynamics(xk, uk, p) - xk1)
-            if ocp.nh:
-                cons.append(ocp.path_constraint(xk, uk, p))
-        rN = ocp.terminal_residual(w[N * nz:], P[:, N])
-        obj += 0.5 * ca.dot(ca.DM(WN) * rN, rN)
-        nlp = {"x": w, "p": ca.vec(P), "f": obj, "g": ca.vertcat(*cons)}
-        opts = {"print_time": False, "ipopt": {
-            "print_level": 0, "sb": "yes", "tol": tol, "max_iter": max_iter,
-            "warm_start_init_point": "yes", "warm_start_bound_push": 1e-9,
-            "warm_start_mult_bound_push": 1e-9, "mu_init": 1e-5}}
-        self._solver = ca.nlpsol(f"{ocp.name}_ipopt", "ipopt", nlp, opts)
-        lbg, ubg = [], []
-        for _ in range(N):
-            lbg += [np.zeros(nx)]
-            ubg += [np.zeros(nx)]
-            if ocp.nh:
-                lbg.append(ocp.h_lower)
-                ubg.append(ocp.h_upper)
-        self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
-        self._lbx = np.concatenate([np.tile(np.concatenate([ocp.x_lower, ocp.u_lower]), N),
-                                    ocp.x_lower])
-        self._ubx = np.concatenate([np.tile(np.concatenate([ocp.x_upper, ocp.u_upper]), N),
-                                    ocp.x_upper])
-        self._w: np.ndarray | None = None
-        self._lam_g: np.ndarray | None = None
-        self._lam_x: np.ndarray | None = None
-        self.last_stats = SolveStats()
-
-    @property
-    def iterate(self) -> np.ndarray:
-        """The last solution w = [x0 u0 ... xN] (a copy)."""
-        if self._w is None:
-            raise RuntimeError("no solution yet")
-        return self._w.copy()
-
-    def reset(self) -> None:
-        """Forget the solution and multipliers (the next solve starts cold)."""
-        self._w = self._lam_g = self._lam_x = None
-
-    def initialize(self, x0, inputs=None, states=None) -> None:
-        """Warm start from ``x0`` held over the horizon and the fallback input, or the given plan."""
-        ocp = self.ocp
-        us = np.tile(ocp.fallback_input, (ocp.horizon, 1)) if inputs is None else inputs
-        xs = np.tile(x0, (ocp.horizon + 1, 1)) if states is None else states
-        self._w = ocp.pack(np.asarray(xs, float), np.asarray(us, float))
-        self._lam_g = self._lam_x = None
-
-    def solve(self, x0, params) -> np.ndarray:
-        """Converged solution for ``x0`` and ``params``; returns the first input."""
-        ocp = self.ocp
-        x0 = check_array("x0", x0, (ocp.nx,))
-        p = np.ascontiguousarray(stage_parameter_matrix(ocp, params)).reshape(-1)   # = vec of (np, N+1)
-        if self._w is None:
-            self.initialize(x0)
-        lbx, ubx = self._lbx.copy(), self._ubx.copy()
-        lbx[:ocp.nx] = ubx[:ocp.nx] = x0
-        w0 = self._w.copy()
-        w0[:ocp.nx] = x0
-        args = dict(x0=w0, p=p, lbx=lbx, ubx=ubx, lbg=self._lbg, ubg=self._ubg)
-        if self._lam_g is not None:
-            args.update(lam_g0=self._lam_g, lam_x0=self._lam_x)
-        t0 = time.perf_counter()
-        sol = self._solver(**args)
-        elapsed = (time.perf_counter() - t0) * 1e3
-        stats = self._solver.stats()
-        w = np.asarray(sol["x"]).ravel()
-        ok = bool(stats.get("success")) and np.all(np.isfinite(w))
-        self.last_stats = SolveStats(solve_ms=elapsed, feedback_ms=elapsed, latency_ms=elapsed,
-                                     qp_iterations=int(stats.get("iter_count", -1)),
-                                     status=str(stats.get("return_status")), fallback=not ok,
-                                     cost=float(sol["f"]))
-        if ok:
-            self._w = w
-            self._lam_g = np.asarray(sol["lam_g"]).ravel()
-            self._lam_x = np.asarray(sol["lam_x"]).ravel()
-            return np.clip(w[ocp.nx:ocp.nx + ocp.nu], ocp.u_lower, ocp.u_upper)
-        self.last_stats.fallback_source = "hover"
-        return ocp.fallback_input.copy()
-
-    def shift(self) -> None:
-        """Shift primal and dual warm starts by one stage."""
-        if self._w is None:
-            return
-        ocp = self.ocp
-        nz, nx, N = ocp.nx + ocp.nu, ocp.nx, ocp.horizon
-        for vec in (self._w, self._lam_x):
-            if vec is None:
-                continue
-            n_body = N * nz
-            vec[:n_body - nz] = vec[nz:n_body].copy()
-            vec[n_body - nz:n_body - nz + nx] = vec[n_body:]
-        if self._lam_g is not None:
-            m = nx + ocp.nh
-            self._lam_g[:-m] = self._lam_g[m:].copy()
-
-    def step(self, x0, params) -> np.ndarray:
-        """Solve for ``x0`` and ``params``, shift the warm start by a stage, and return the first input."""
-        u = self.solve(x0, params)
-        self.shift()
-        return u

@@ -1,0 +1,96 @@
+"""The clearance constraint every MPC on the base can keep (and the safety filter builds on).
+
+Clearance. Given the turbine (``obstacles``, a :class:`~wt_inspect_env.planner.proximity.TurbineProximity`;
+the registered factories pass the environment's mission geometry), every MPC on this base keeps a
+minimum distance ``d_min`` to the mesh (default 3/7 d_ref: 3 m at the paper's 7 m stand-off). At
+each step the nearest mesh point c_k and the outward direction n_k are found for stages of the
+predicted trajectory (the warm-started plan; stage 0 the measured position) and passed as
+stage-wise parameters of the half-space constraint
+
+    n_k^T (p_k - c_k) - max(0, -n_k^T v_k)^2 / (2 a_brake) + s_k >= d_min + back-off,
+
+with cost l2 s_k^2 / 2 (+ l1 s_k with s_k >= 0 when ``clearance_l1`` > 0) per stage. The braking
+term makes the constraint see the stopping
+distance at the approach speed: the 0.3 s horizons of the VT-NMPC and the NMPC are shorter than a
+stop from a fast approach, so a position-only constraint would only appear once braking is too late.
+A half-space through the closest point of a convex part of the mesh contains none of that part, so
+p_k in it is at least d_min from that part. The slack s_k (an extra input priced in the
+least-squares cost; the command is the inputs without it) keeps the QP feasible when the measured
+state is already inside. The default prices it with L1 and L2 (``clearance_l1`` = ``clearance_l2``
+= 1e3, the slack bounded below by 0): the L1 price makes the constraint exact whenever its
+multiplier is below it, and the small L2 price keeps the QP well scaled. A pure L2 slack
+(``clearance_l1=0``: unbounded, violated by multiplier / l2, so l2 must be large) needs no active
+slack bound, about one interior-point iteration fewer, but with l2 = 1e6 the QPs of fast approaches
+from far starts were so badly conditioned that HPIPM stopped at its iteration limit or its minimum
+step (``wt-inspect campaign``; results/campaign has the counts).
+``clearance=False`` or no ``obstacles`` builds the OCP without any of it, exactly
+as before.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from wt_inspect_env.physics.dynamics import quat_to_rotmat
+from wt_inspect_env.physics.quadrotor import GRAVITY
+from wt_inspect_env.planner.proximity import TurbineProximity
+
+from ..rti import OCP
+from .config import MPCConfig
+
+N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
+SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
+
+
+def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
+    """``ocp`` with the soft clearance constraint of the module docstring: one slack input
+    appended (within +-SLACK_UPPER, or [0, SLACK_UPPER] with an L1 price; fallback 0), its residual
+    ``s + l1 / l2`` appended to the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const;
+    l1, l2 = :attr:`MPCConfig.clearance_prices`),
+    and the path constraint
+    on stage parameters appended to the OCP's own [n (3), b]. The first 10 states must be the drone's
+    [p, v_B, q] (augmented states keep them first)."""
+    if ocp.nh:
+        raise ValueError(f"the clearance constraint cannot be added to OCP {ocp.name!r}: it already has "
+                         f"{ocp.nh} path constraints")
+    nx, nu, npar = ocp.nx, ocp.nu, ocp.np
+    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", nu + 1), ca.SX.sym("p", npar + N_CLEARANCE_PARAMS)
+    uc, slack, pc = u[:nu], u[nu], p[:npar]
+    n, b = p[npar:npar + 3], p[npar + 3]
+    name = f"{ocp.name}_clr"
+    dyn = ca.Function(f"{name}_F", [x, u, p], [ocp.dynamics(x, uc, pc)], ["x", "u", "p"], ["x_next"])
+    l1, l2 = config.clearance_prices
+    offset = l1 / l2
+    stage = ca.Function(f"{name}_r", [x, u, p], [ca.vertcat(ocp.stage_residual(x, uc, pc), slack + offset)],
+                        ["x", "u", "p"], ["r"])
+    terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
+    R = quat_to_rotmat(x[6:10])
+    v_n = ca.dot(n, R @ x[3:6])          # velocity along the outward direction
+    approach = ca.fmax(0.0, -v_n)
+    stop = approach ** 2 / (2.0 * config.clearance_brake)
+    t_r = config.clearance_reaction
+    if t_r > 0.0:
+        # for t_r the drone keeps its present acceleration (thrust along body z, gravity) - a
+        # drone tilted towards the structure gains speed while it turns round - then brakes
+        a_n = ca.dot(n, R[:, 2]) * uc[3] / config.params.mass - GRAVITY * n[2]
+        reach = ca.fmax(0.0, -(v_n * t_r + 0.5 * a_n * t_r ** 2))
+        speed = ca.fmax(0.0, -(v_n + a_n * t_r))
+        stop = reach + speed ** 2 / (2.0 * config.clearance_brake)
+    h = ca.dot(n, x[0:3]) - b - stop + slack
+    path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
+    return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
+               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER),
+               u_upper=np.append(ocp.u_upper, SLACK_UPPER),
+               fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
+               path_constraint=path, h_lower=np.zeros(1), h_upper=np.full(1, np.inf))
+
+
+def check_obstacles(obstacles: Any) -> TurbineProximity | None:
+    """``obstacles`` as a TurbineProximity: one, a mission (``env.mission``), or None."""
+    if obstacles is None or isinstance(obstacles, TurbineProximity):
+        return obstacles
+    if hasattr(obstacles, "turbines"):
+        return TurbineProximity.from_mission(obstacles)
+    raise ValueError(f"obstacles must be a TurbineProximity, a mission or None, got {type(obstacles).__name__}")
