@@ -64,6 +64,13 @@ def test_the_runs_of_a_study_are_planned_from_its_commands():
         ("evaluate", "pampc", "lab", 4.0), ("evaluate", "pampc", "lab", 7.0)]
     sweep = behaviour.study_runs(["wt-inspect study pose-sweep --azimuths 0:20:10 --facings=0 --out x"])
     assert [r.spec.env_options["turbine"]["rotor_azimuth_deg"] for r in sweep] == [0.0, 10.0, 20.0]
+    # the planner study plans (no flight): its runs are its drawn turbines, its digest their stand-off path
+    planned = behaviour.digested_runs(["wt-inspect study planner-clearance --turbines 3 --out x"])
+    assert [(r.runner, r.spec["episode"]) for r in planned] == [("planner", 0), ("planner", 2)]
+    d = behaviour.fly_prefix(planned[0])
+    assert len(d["t"]) == 21 and d["t"][0] == 0.0 and behaviour.compare(d, behaviour.fly_prefix(planned[0])) == ""
+    moved = {**d, "position": [[x + 0.01, y, z] for x, y, z in d["position"]]}   # a plan 1 cm off
+    assert "position" in behaviour.compare(d, moved)
     # commands that fly nothing have no digest; the first and the last run carry it
     assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
     assert [r.spec.controller for r in behaviour.digested_runs(

@@ -20,8 +20,10 @@ that different controllers, winds or rows are covered, and the full regeneration
 The runs of a study are those its commands would fly, planned from the commands themselves with
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
 ``study safety-filter`` / ``study pose-sweep`` fly runs here, and ``tune`` its first trial (the
-controller's own weights). A study whose commands fly nothing (training, analyses) has no digest;
-its staleness is decided by the code version as before.
+controller's own weights). ``study planner-clearance`` flies nothing but plans: its digest is the
+stand-off path of its first and last turbine (poses at 21 evenly spaced samples). A study whose
+commands fly nothing (training, analyses) has no digest; its staleness is decided by the code
+version as before.
 """
 from __future__ import annotations
 
@@ -53,6 +55,8 @@ class StudyRun:
     def label(self) -> str:
         """How the run is named in the digest's table (scenario, controller, wind, seed; or the start)."""
         s = self.spec
+        if isinstance(s, Mapping) and self.runner == "planner":
+            return f"planned turbine {s['episode']} ({s['turbine']})"
         if isinstance(s, Mapping):
             return f"adversarial start {s['start']}{' filtered' if s['filtered'] else ''}"
         return f"{s.scenario} {s.controller} wind {s.wind:g} seed {s.seed}"
@@ -137,6 +141,9 @@ def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
     if argv and argv[0] == "pose-sweep":
         from .studies.pose_sweep import planned_specs
         return [StudyRun("evaluate", s) for s in planned_specs(list(argv[1:]))]
+    if argv and argv[0] == "planner-clearance":
+        from .studies.planner_clearance import planned_draws
+        return [StudyRun("planner", d) for d in planned_draws(list(argv[1:]))]
     return []
 
 
@@ -185,6 +192,14 @@ def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
     if run.runner == "adversary":
         from .studies.safety_filter import trajectory
         return digest(*trajectory(run.spec, seconds), seconds)
+    if run.runner == "planner":
+        from .studies.planner_clearance import planned_path
+        poses = planned_path(run.spec)
+        # the planned path, not a flight: the stand-off pose at every SECONDS-th of the path (as
+        # "position"; "t" the sample index, "velocity" zero) - a changed plan moves them by metres
+        idx = np.linspace(0, len(poses) - 1, int(seconds) + 1).round().astype(int)
+        return {"t": [float(i) for i in idx], "position": np.round(poses[idx], DECIMALS).tolist(),
+                "velocity": np.zeros((len(idx), 3)).tolist()}
     spec = replace(run.spec, max_time=seconds if run.spec.max_time is None else min(seconds, run.spec.max_time),
                    record_every=1)
     if run.runner == "campaign":
@@ -196,7 +211,7 @@ def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
         from .evaluation.runner import execute
         res = execute(spec, record=True)
     else:
-        raise ValueError(f"unknown runner {run.runner!r}; known: adversary, campaign, evaluate")
+        raise ValueError(f"unknown runner {run.runner!r}; known: adversary, campaign, evaluate, planner")
     a = res.arrays
     return digest(a["t"], a["position"], a["velocity_body"], seconds)
 

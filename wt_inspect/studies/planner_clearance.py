@@ -100,24 +100,42 @@ def draws(turbines: int, seed: int) -> list[dict[str, Any]]:
     return draw_episodes(CampaignConfig(episodes=turbines, seed=seed))
 
 
-def check_draw(draw: Mapping[str, Any]) -> dict[str, Any]:
-    """Plan one drawn turbine as the environment does and check its mission (one table row)."""
-    from wt_inspect_env.planner.clearance import DistanceField
+def planned_draws(argv: Sequence[str]) -> list[dict[str, Any]]:
+    """The turbine draws the command line ``argv`` plans (what ``wt-inspect reproduce`` digests)."""
+    a = build_parser().parse_args(list(argv))
+    return draws(a.turbines, a.seed)
+
+
+def _mission(draw: Mapping[str, Any]) -> tuple[Any, Any]:
+    """The environment configuration and mission of a drawn turbine, built as ``gym.make`` builds them."""
     from wt_inspect_env.task.env_config import EnvConfig
     from wt_inspect_env.task.mission import build_mission
-    from wt_inspect_env.task.reference import standoff_poses
 
     from ..commands.campaign import episode_options
     opts = episode_options(draw, "full", airframe_randomization=False)
     opts.update(wind="none", start_offset=(0.0, 0.0, 0.0))
     cfg = EnvConfig(**opts)
+    return cfg, build_mission(cfg)
+
+
+def planned_path(draw: Mapping[str, Any]) -> np.ndarray:
+    """The stand-off poses the reference hands out on a drawn turbine's mission, in flight order."""
+    from wt_inspect_env.task.reference import standoff_poses
+    cfg, mission = _mission(draw)
+    return standoff_poses(mission.points, mission.normals, cfg.standoff)
+
+
+def check_draw(draw: Mapping[str, Any]) -> dict[str, Any]:
+    """Plan one drawn turbine as the environment does and check its mission (one table row)."""
+    from wt_inspect_env.planner.clearance import DistanceField
+    from wt_inspect_env.task.reference import standoff_poses
     row: dict[str, Any] = {"turbine_index": int(draw["episode"]), "turbine": draw["turbine"],
                            "tower_height": float(draw["tower_height"]), "blade_length": float(draw["blade_length"]),
                            "blade_width": float(draw["blade_width"]),
                            "rotor_azimuth_deg": float(draw["rotor_azimuth_deg"]), "refused": ""}
     t0 = time.perf_counter()
     try:
-        mission = build_mission(cfg)
+        cfg, mission = _mission(draw)
     except ValueError as exc:
         row.update(refused=str(exc).splitlines()[0], plan_s=time.perf_counter() - t0)
         return row
