@@ -61,6 +61,7 @@ def test_the_ground_is_an_obstacle():
     assert brute_distance(samples, SLAB).min() >= 3.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("episode", [8, 9, 12])
 def test_the_campaigns_stalled_nrel_starts_now_reach_the_path(episode, tmp_path):
     """Campaign episodes 8, 9 and 12 (master seed 0: NREL 5-MW turbines, full and scaled, starts

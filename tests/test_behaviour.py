@@ -96,6 +96,7 @@ def _checkout(tmp_path: Path, seconds: float) -> tuple[Path, list[reproduce.Stud
     return tmp_path, studies
 
 
+@pytest.mark.slow
 def test_a_changed_weight_makes_exactly_the_studies_that_fly_it_stale(tmp_path, monkeypatch):
     from controllers import vtnmpc
     root, studies = _checkout(tmp_path, seconds=4.0)

@@ -136,6 +136,7 @@ def test_two_episode_campaign_writes_everything(tmp_path) -> None:
     assert f"{again['wall_time_s']:.1f} s over 2 invocation(s)" in (out / "results.md").read_text()
 
 
+@pytest.mark.slow
 def test_a_start_drawn_inside_the_turbine_gets_a_new_direction_deterministically() -> None:
     # campaign episodes 94 and 166 of seed 0 (format /1 draws) drew starts inside a blade and the
     # tower (collision at the first step); the campaign redraws such a direction from the episode's

@@ -89,6 +89,7 @@ def test_with_phase_starts_the_rotor_position_follows_the_progress_exactly():
         TurbineProximity([a, b, c], phase_starts=[0.7, 0.4])
 
 
+@pytest.mark.slow
 def test_the_registered_mpcs_switch_rotor_position_exactly_when_the_env_does():
     """Fly the paper mission's reference with a stand-in drone (teleported to the ideal pose) and
     check that the MPCs' proximity (built as the registry builds it) is on the env's rotor position

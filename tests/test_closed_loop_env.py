@@ -38,6 +38,7 @@ def test_vtnmpc_settles_facing_the_surface_without_wind():
     assert h[-300:].min() > 0.99
 
 
+@pytest.mark.slow
 def test_vtnmpc_keeps_safety_over_a_surface_in_the_paper_gust():
     """The paper's 4 m/s gust (sinusoid 10 s, std 0.5 m/s, along y = along this surface's normal).
 
@@ -53,6 +54,7 @@ def test_vtnmpc_keeps_safety_over_a_surface_in_the_paper_gust():
     assert m["centering_cm"] > 0.99
 
 
+@pytest.mark.slow
 def test_vtnmpc_plus_meets_the_targets_in_the_7_mps_gust_where_the_paper_form_does_not():
     """7 m/s gust along this surface's normal: the paper-faithful VT-NMPC is blown ~1 m off
     d_ref (SM collapses), VT-NMPC+ (observer, gimbal-camera heading, chord heading residual) keeps

@@ -56,6 +56,7 @@ def _metric_rows(path: Path) -> dict[tuple, dict]:
     return {(r["controller"], r["wind"], r["seed"]): {k: r[k] for k in METRICS} for r in read_csv(path)}
 
 
+@pytest.mark.slow
 def test_cli_end_to_end_and_resume(tmp_path, capsys):
     out = tmp_path / "ev"
     argv = ["--scenario", "surface", "--controllers", "vtnmpc,nmpc", "--winds", "0,4", "--max-time", "2",
@@ -115,6 +116,7 @@ def test_cli_end_to_end_and_resume(tmp_path, capsys):
     assert "(4 executed, 0 resumed)" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_interrupted_evaluation_keeps_finished_runs(tmp_path):
     out = tmp_path / "ev"
     cmd = [sys.executable, "-m", "wt_inspect.cli", "evaluate", "--scenario", "surface", "--controllers",
@@ -259,6 +261,7 @@ def test_scenarios_build_the_papers_setups():
         env_options("paper", -1.0)
 
 
+@pytest.mark.slow
 def test_local_and_ray_backends_agree(tmp_path):
     pytest.importorskip("ray")
     common = dict(scenario="surface", controllers=["vtnmpc", "pampc"], winds=[4.0], seeds=[0, 1], max_time=2.0,
@@ -276,6 +279,7 @@ def test_local_and_ray_backends_agree(tmp_path):
     assert rows_l[("vtnmpc", 4.0, 0.0)] != rows_l[("vtnmpc", 4.0, 1.0)]
 
 
+@pytest.mark.slow
 def test_ray_backend_without_an_address_runs_on_its_own_instance(tmp_path, monkeypatch):
     """Without ``address`` the backend starts a private instance even when the environment points
     Ray at some cluster (a stale ``ray start``, an exported RAY_ADDRESS): nothing listens on

@@ -114,6 +114,7 @@ def test_a_single_run_sweep_interrupted_by_sigterm_writes_the_report(tmp_path):
     assert read_csv(out / "results.csv") == []
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", ["SIGTERM", "SIGINT"])
 def test_a_signal_while_the_figures_are_drawn_still_writes_results_md(tmp_path, sig):
     out = tmp_path / "ev"

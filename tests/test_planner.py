@@ -286,6 +286,7 @@ def test_wraps_slide_over_the_blade_and_normals_turn_smoothly(plan):
         assert np.abs(n @ edge).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_standoffs_clear_the_turbine_and_arc_lengths(plan):
     d = plan.standoff
     q, p, n = plan.standoff_points, plan.points, plan.normals

@@ -63,6 +63,7 @@ def drawn_rows():
     return [pc.check_draw(d) for d in pc.draws(6, seed=0)]
 
 
+@pytest.mark.slow
 def test_drawn_turbines_keep_d_min_on_every_pose_and_path(drawn_rows):
     kinds = {r["turbine"] for r in drawn_rows}
     assert {"generated", "nrel-5mw-scaled"} <= kinds

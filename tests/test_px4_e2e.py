@@ -85,6 +85,7 @@ def _compare(flight, ref):
     return got, want
 
 
+@pytest.mark.slow
 def test_clean_link_reproduces_evaluate(tmp_path, reference):
     flight, n = fly_served(tmp_path, None)
     got, want = _compare(flight, reference)
@@ -94,6 +95,7 @@ def test_clean_link_reproduces_evaluate(tmp_path, reference):
     assert np.linalg.norm(flight.result.arrays["position"][-1] - reference.arrays["position"][-1]) < 0.1
 
 
+@pytest.mark.slow
 def test_lossy_late_link_vtnmpc_plus_still_scores_as_in_evaluate(tmp_path, reference):
     flight, n = fly_served(tmp_path, FAULTS)
     got, want = _compare(flight, reference)

@@ -54,6 +54,7 @@ def _tiny_checkout(tmp_path: Path) -> Path:
     return tmp_path
 
 
+@pytest.mark.slow
 def test_run_writes_provenance_and_check_follows_it(tmp_path, monkeypatch):
     monkeypatch.setenv("MPLBACKEND", "Agg")
     root = _tiny_checkout(tmp_path)

@@ -121,6 +121,7 @@ def test_set_weights_rebuilds_ipopt():
     assert not np.allclose(policy.act(obs), u0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("options", [{}, VTNMPC_PLUS])
 def test_prepare_ahead_runs_only_the_feedback_after_the_command(options):
     """With prepare_ahead each act runs the feedback QP first and prepares the next step after

@@ -21,6 +21,8 @@ from wt_inspect_env.task.env_config import EnvConfig
 from wt_inspect_env.task.mission import build_mission
 from wt_inspect_env.task.reference import InspectionReference, ReferenceConfig
 
+pytestmark = pytest.mark.slow      # whole missions replayed: ~20 s
+
 STALLED = (0, 2, 10, 11, 15, 18, 19)
 DT = 0.02
 

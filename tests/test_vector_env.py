@@ -81,6 +81,7 @@ def test_far_start_across_the_rotor_plane_matches_the_single_env():
     assert seen["resets"] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("n", [1, 4, 16])
 def test_drone_i_is_the_single_env_seeded_s_plus_i_across_autoresets(n):
     # start noise makes the drones differ; the 1.5 s limit forces autoresets mid-run
