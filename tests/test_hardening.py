@@ -156,15 +156,21 @@ def test_sigint_in_train_before_the_first_checkpoint_saves_one(tmp_path):
 
 def test_interrupts_deferred_holds_a_second_signal_until_the_report_is_written():
     from wt_inspect_env.util.interrupts import Terminated, interrupts_deferred, interrupts_raise
+    # a suite started from a background job inherits an ignored SIGINT, which the helpers (rightly)
+    # leave ignored; this test is about a live one
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
     steps = []
-    with interrupts_raise():
-        with pytest.raises(Terminated):
-            with interrupts_deferred():
-                os.kill(os.getpid(), signal.SIGTERM)
-                steps.append("written")   # not cut short
-        with interrupts_deferred(raise_noted=False) as noted:
-            os.kill(os.getpid(), signal.SIGINT)
-        assert noted == [signal.SIGINT]
+    try:
+        with interrupts_raise():
+            with pytest.raises(Terminated):
+                with interrupts_deferred():
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    steps.append("written")   # not cut short
+            with interrupts_deferred(raise_noted=False) as noted:
+                os.kill(os.getpid(), signal.SIGINT)
+            assert noted == [signal.SIGINT]
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert steps == ["written"]
 
 
