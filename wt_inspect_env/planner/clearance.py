@@ -140,8 +140,8 @@ class Clearance:
         self.offsets = tuple(offsets)
 
     def distances(self, points: np.ndarray) -> np.ndarray:
-        """Distances capped just above the required clearance (cheap: few candidate triangles), and
-        at most the height above the floor."""
+        """Distances capped just above the required clearance, and at most the height above the
+        floor."""
         d = self.field.distance(points, self.required + 1e-6)
         if self.floor == -np.inf:
             return d
@@ -197,9 +197,9 @@ class Clearance:
     def grid_route(self, qa: np.ndarray, qb: np.ndarray, max_cells: int = 400_000) -> np.ndarray | None:
         """A clear polyline ``qa -> qb`` through a grid of free space, or None.
 
-        The search box is the segment's bounding box grown by ``margin`` (two clearances plus
-        a quarter of the segment, then twice that, then four times), cut into cubic cells of side
-        ``h`` (at least ``step``, at most ``max_cells`` cells). A cell is free when its centre
+        The search box is the segment's bounding box grown by two clearances plus a quarter of the
+        segment (then by twice that, then four times, until a route is found), cut into cubic cells
+        of side ``h`` (at least ``step``, at most ``max_cells`` cells). A cell is free when its centre
         clears ``required + h sqrt(3) / 2``: the distance is 1-Lipschitz, so the straight segment
         between the centres of neighbouring cells (at most ``h sqrt(3)`` long) then clears
         ``required`` everywhere. ``qa`` and ``qb`` join the nearest free cells they reach in a
@@ -223,8 +223,16 @@ class Clearance:
             free = self.field.distance(centres, need + 1e-6) >= need
             if self.floor != -np.inf:
                 free &= centres[:, 2] - self.floor >= need
+            fc = centres[free]
+            ends = []
+            for q in (qa, qb):          # the nearest free cells q sees in a clear straight line
+                order = np.argsort(np.linalg.norm(fc - q, axis=1))[:64]
+                ends.append(next((int(i) for i in order if self.polyline_clear(np.stack([q, fc[i]]))), None))
+            if ends[0] is None or ends[1] is None:
+                continue
+            n = len(fc)
             index = np.full(len(centres), -1, dtype=np.int64)
-            index[free] = np.arange(int(free.sum()))
+            index[free] = np.arange(n)
             grid = index.reshape(shape)
             rows, cols, wts = [], [], []
             for off in itertools.product((-1, 0, 1), repeat=3):
@@ -236,15 +244,6 @@ class Clearance:
                 rows.append(src[both])
                 cols.append(dst[both])
                 wts.append(np.full(int(both.sum()), h * float(np.linalg.norm(off))))
-            n = int(free.sum())
-            ends = []
-            for q in (qa, qb):          # the nearest free cells q sees in a clear straight line
-                fc = centres[free]
-                order = np.argsort(np.linalg.norm(fc - q, axis=1))[:64]
-                hit = next((int(i) for i in order if self.polyline_clear(np.stack([q, fc[i]]))), None)
-                ends.append(hit)
-            if n == 0 or ends[0] is None or ends[1] is None:
-                continue
             r, c, w = np.concatenate(rows), np.concatenate(cols), np.concatenate(wts)
             graph = coo_matrix((w, (r, c)), shape=(n, n)).tocsr()
             dist, pred = dijkstra(graph, directed=False, indices=ends[0], return_predecessors=True)
@@ -254,7 +253,6 @@ class Clearance:
             while k >= 0:
                 chain.append(k)
                 k = int(pred[k])
-            fc = centres[free]
             path = np.vstack([qa, fc[chain[::-1]], qb])
             out, i = [path[0]], 0
             while i < len(path) - 1:
