@@ -75,15 +75,8 @@ def test_drawn_turbines_keep_d_min_on_every_pose_and_path(drawn_rows):
 
 def test_the_distances_behind_the_verdict_equal_brute_force():
     """The poses nearest the structure on a drawn turbine, re-measured over every triangle."""
-    from wt_inspect.commands.campaign import episode_options
-    from wt_inspect_env.task.env_config import EnvConfig
-    from wt_inspect_env.task.mission import build_mission
     from wt_inspect_env.task.reference import standoff_poses
-    draw = pc.draws(1, seed=0)[0]
-    opts = episode_options(draw, "full", airframe_randomization=False)
-    opts.update(wind="none", start_offset=(0.0, 0.0, 0.0))
-    cfg = EnvConfig(**opts)
-    m = build_mission(cfg)
+    cfg, m = pc.drawn_mission(pc.draws(1, seed=0)[0])
     poses = standoff_poses(m.points, m.normals, cfg.standoff)
     sel = m.phase == 1
     tris = m.turbines[0].all_triangles

@@ -15,10 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wt_inspect.commands.campaign import CampaignConfig, draw_episodes, episode_options
+from wt_inspect.commands.campaign import CampaignConfig, draw_episodes
+from wt_inspect.studies.planner_clearance import drawn_mission
 from wt_inspect_env.planner.proximity import TurbineProximity
-from wt_inspect_env.task.env_config import EnvConfig
-from wt_inspect_env.task.mission import build_mission
 from wt_inspect_env.task.reference import InspectionReference, ReferenceConfig
 
 pytestmark = pytest.mark.slow      # whole missions replayed: ~20 s
@@ -30,13 +29,7 @@ DT = 0.02
 @pytest.fixture(scope="module")
 def missions():
     draws = draw_episodes(CampaignConfig(episodes=max(STALLED) + 1))
-    out = {}
-    for k in STALLED:
-        opts = episode_options(draws[k], "full", airframe_randomization=False)
-        opts.update(wind="none", start_offset=(0.0, 0.0, 0.0))
-        cfg = EnvConfig(**opts)
-        out[k] = (cfg, build_mission(cfg))
-    return out
+    return {k: drawn_mission(draws[k]) for k in STALLED}
 
 
 def _replay(mission, cfg):

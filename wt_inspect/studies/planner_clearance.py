@@ -106,7 +106,7 @@ def planned_draws(argv: Sequence[str]) -> list[dict[str, Any]]:
     return draws(a.turbines, a.seed)
 
 
-def _mission(draw: Mapping[str, Any]) -> tuple[Any, Any]:
+def drawn_mission(draw: Mapping[str, Any]) -> tuple[Any, Any]:
     """The environment configuration and mission of a drawn turbine, built as ``gym.make`` builds them."""
     from wt_inspect_env.task.env_config import EnvConfig
     from wt_inspect_env.task.mission import build_mission
@@ -121,7 +121,7 @@ def _mission(draw: Mapping[str, Any]) -> tuple[Any, Any]:
 def planned_path(draw: Mapping[str, Any]) -> np.ndarray:
     """The stand-off poses the reference hands out on a drawn turbine's mission, in flight order."""
     from wt_inspect_env.task.reference import standoff_poses
-    cfg, mission = _mission(draw)
+    cfg, mission = drawn_mission(draw)
     return standoff_poses(mission.points, mission.normals, cfg.standoff)
 
 
@@ -135,7 +135,7 @@ def check_draw(draw: Mapping[str, Any]) -> dict[str, Any]:
                            "rotor_azimuth_deg": float(draw["rotor_azimuth_deg"]), "refused": ""}
     t0 = time.perf_counter()
     try:
-        cfg, mission = _mission(draw)
+        cfg, mission = drawn_mission(draw)
     except ValueError as exc:
         row.update(refused=str(exc).splitlines()[0], plan_s=time.perf_counter() - t0)
         return row
