@@ -214,9 +214,9 @@ def main(argv: list[str], prog: str = "wt-inspect study pose-sweep") -> int:
     # a mission that raises (e.g. a turbine the planner cannot route) is recorded, not the end of the sweep
     run_specs("local", todo, finished, jobs=jobs, progress=not args.no_progress, task=execute_or_record)
     rows = [row(done[s.filename], args.turbine) for s in specs]
-    from wt_inspect_env.planner.config import D_MIN_RATIO
+    from ..commands.campaign.summary import default_d_min  # the paper scenario flies the default stand-off
     d_min = next((float(done[s.filename].metrics["d_min_m"]) for s in specs
-                  if "d_min_m" in done[s.filename].metrics), D_MIN_RATIO * 7.0)
+                  if "d_min_m" in done[s.filename].metrics), default_d_min())
     tmp = out / "results.csv.tmp"
     with open(tmp, "w", newline="") as fh:
         w = csv.DictWriter(fh, fieldnames=FIELDS, extrasaction="ignore")
