@@ -80,7 +80,9 @@ def test_wall_time_sums_the_invocations(tmp_path) -> None:
     assert cp.earlier_invocations(path, cfg) == []
     path.write_text(json.dumps({"config": cp.config_json(cfg), "wall_time_invocations_s": [10.0, 5.5]}))
     assert cp.earlier_invocations(path, cfg) == [10.0, 5.5]
-    assert cp.earlier_invocations(path, cp.CampaignConfig(episodes=3)) == []   # another campaign
+    assert cp.earlier_invocations(path, cp.CampaignConfig(episodes=2, seed=1)) == []   # another campaign
+    # the same campaign given more episodes reuses the finished ones, so their cost counts
+    assert cp.earlier_invocations(path, cp.CampaignConfig(episodes=3)) == [10.0, 5.5]
     path.write_text(json.dumps({"config": cp.config_json(cfg), "wall_time_s": 3.0, "wall_time_total_s": 12.0}))
     assert cp.earlier_invocations(path, cfg) == [12.0]                         # a format-/1 file's total
 

@@ -100,6 +100,58 @@ def test_only_run_files_of_the_current_code_are_resumed(tmp_path):
     assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", io.StringIO()) == 0
 
 
+def test_a_grown_study_resumes_from_committed_runs_only_when_they_fly_the_same(tmp_path, monkeypatch):
+    """A study whose command grows (a campaign given more episodes) keeps its committed run files
+    when the current code flies their behaviour digests the same, and flies only what is new;
+    without digests, when they differ, or with --force, the old code's run files are discarded."""
+    import numpy as np
+
+    from wt_inspect import behaviour
+
+    folder = tmp_path / "results" / "grow"
+    runs = folder / "runs"
+    runs.mkdir(parents=True)
+    study = reproduce.Study("grow", "results/grow", ("wt-inspect study sm-vs-wind --results results",))
+
+    def fresh_runs() -> None:
+        np.savez_compressed(runs / "old.npz", meta=np.array(json.dumps({"code": "0ld"})))
+
+    def prov(**extra) -> None:
+        (folder / reproduce.PROVENANCE).write_text(json.dumps(
+            {"commands": ["wt-inspect campaign --episodes 2"], "complete": True, **extra}))
+
+    seen = []
+
+    def verify(commands, recorded, progress=None):
+        seen.append(list(commands))
+        return "" if recorded == {"runs": ["same"]} else "behaviour differs: x"
+
+    monkeypatch.setattr(behaviour, "verify", verify)
+    fresh_runs()
+    prov()                                                       # no digests: discarded
+    assert reproduce.runs_fly_the_same(tmp_path, study) == "no complete provenance with behaviour digests"
+    prov(behaviour={"runs": ["same"]})
+    assert reproduce.runs_fly_the_same(tmp_path, study) == ""
+    assert seen[-1] == ["wt-inspect campaign --episodes 2"]      # verified with the commands they were made by
+    prov(behaviour={"runs": ["other"]})
+    assert reproduce.runs_fly_the_same(tmp_path, study) == "behaviour differs: x"
+    prov(behaviour={"runs": ["same"]}, complete=False)
+    assert reproduce.runs_fly_the_same(tmp_path, study) != ""
+
+    # through run_study: the command is replaced by a no-op so only the run files' fate is tested
+    monkeypatch.setattr(reproduce.subprocess, "run", lambda *a, **k: type("R", (), {"returncode": 1})())
+    prov(behaviour={"runs": ["same"]})
+    log = io.StringIO()
+    assert not reproduce.run_study(tmp_path, study, list(study.commands), log)
+    assert (runs / "old.npz").is_file() and "resuming from its committed run files" in log.getvalue()
+    assert not reproduce.run_study(tmp_path, study, list(study.commands), io.StringIO(), fresh=True)
+    assert not (runs / "old.npz").exists()
+    fresh_runs()
+    prov(behaviour={"runs": ["other"]})
+    assert not reproduce.run_study(tmp_path, study, list(study.commands), io.StringIO())
+    assert not (runs / "old.npz").exists()
+
+
 def test_readme_numbers_must_come_from_the_named_file(tmp_path):
     root = _tiny_checkout(tmp_path)
     (root / "results/paper_faithful_wind/results.md").write_text("| a | b |\n|---|---|\n| x | 1.0 % |\n")

@@ -336,15 +336,36 @@ def discard_foreign_runs(folder: Path, fingerprint: str, log=sys.stderr) -> int:
     return n
 
 
-def run_study(root: Path, study: Study, commands: list[str], log=sys.stderr) -> bool:
-    """Run a study's commands in order from ``root`` - resuming only from run files of the current
-    code (:func:`discard_foreign_runs`); on success write its provenance."""
+def runs_fly_the_same(root: Path, study: Study) -> str:
+    """Why the run files of ``study``'s committed folder may not be resumed from ("" when they
+    may): its provenance must be complete and record behaviour digests, and the current code must
+    fly those digests again for the commands they were recorded with. Such run files were made by
+    code that flies the same, so a grown study (a campaign given more episodes) keeps them and
+    flies only what is new."""
+    prov = read_provenance(root, study)
+    if not prov or not prov.get("complete") or not prov.get("behaviour"):
+        return "no complete provenance with behaviour digests"
+    from wt_inspect.behaviour import verify
+    with contextlib.chdir(root):
+        return verify(list(prov.get("commands", [])), prov["behaviour"])
+
+
+def run_study(root: Path, study: Study, commands: list[str], log=sys.stderr, *, fresh: bool = False) -> bool:
+    """Run a study's commands in order from ``root`` - resuming from run files of the current code,
+    or from the committed ones when the current code flies their behaviour digests the same
+    (:func:`runs_fly_the_same`; never with ``fresh``), others discarded
+    (:func:`discard_foreign_runs`); on success write its provenance."""
     from wt_inspect.cli import version
     from wt_inspect.evaluation.report import hardware
     from wt_inspect.evaluation.runner import code_fingerprint
     from wt_inspect_env.util.atomic_io import write_text_atomic
     t0 = time.perf_counter()
-    discard_foreign_runs(root / study.folder, code_fingerprint(), log)
+    why = "--force asks for fresh flights" if fresh else runs_fly_the_same(root, study)
+    if why:
+        discard_foreign_runs(root / study.folder, code_fingerprint(), log)
+    else:
+        print(f"reproduce {study.name}: resuming from its committed run files (the current code flies their "
+              "behaviour digests the same)", file=log, flush=True)
     for c in commands:
         print(f"reproduce {study.name}: {c}", file=log, flush=True)
         res = subprocess.run([sys.executable, "-m", "wt_inspect.cli", *shlex.split(c)[1:]], cwd=root)
@@ -446,7 +467,7 @@ def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
               disable=args.no_progress) as bar:
         for s, cmds in todo:
             bar.set_postfix_str(s.name)
-            if not run_study(root, s, cmds):
+            if not run_study(root, s, cmds, fresh=args.force):
                 failed.append(s.name)
             bar.update(len(cmds))
     if failed:

@@ -140,12 +140,15 @@ def _fly_campaign(cfg: CampaignConfig, out_dir: Path, specs: list[RunSpec], draw
 def earlier_invocations(path: Path, cfg: CampaignConfig) -> list[float]:
     """Wall times [s] of the earlier invocations of the same campaign in ``out`` (none for a new
     one, or for another campaign's ``campaign.json``), so a resumed campaign reports its whole
-    cost, not only its last invocation's. A format-/1 file gives its summed total as one entry."""
+    cost, not only its last invocation's. A campaign given more (or fewer) episodes is the same
+    campaign: episode k does not depend on how many follow, so its finished run files are reused
+    and their cost counts. A format-/1 file gives its summed total as one entry."""
     try:
         doc = json.loads(path.read_text())
     except (OSError, ValueError):
         return []
-    if not isinstance(doc, dict) or doc.get("config") != config_json(cfg):
+    if not isinstance(doc, dict) or not isinstance(doc.get("config"), dict) or \
+            {**doc["config"], "episodes": cfg.episodes} != config_json(cfg):
         return []
     walls = doc.get("wall_time_invocations_s")
     if not isinstance(walls, list):
