@@ -32,6 +32,19 @@ flights that dip below d_min without colliding.
 When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan),
 then hover - never the unfiltered command; :class:`SafetyFilter` counts every intervention and
 every such fallback.
+
+Pass-through (``pass_through``, on by default). Most steps of a policy that flies its mission at
+the stand-off need no correction, and solving the QP to learn that is most of the filter's time.
+So each step first rolls the *candidate* - the policy's command, then hover (the backup the cost
+pulls towards) - through the same model with the same stage-wise half-spaces
+(:class:`controllers.rti.rollout.Rollout`: the OCP's own dynamics and clearance constraint,
+without slack). If every stage keeps the constraint with ``pass_through_margin`` to spare, the
+candidate is a feasible point of the filter's problem at zero cost - the QP's own answer when no
+constraint binds - so the policy's command is applied without the QP, and the candidate becomes
+the plan: the next QP is linearised along it, and if that QP fails, the shifted candidate is the
+backup that flies. Otherwise the QP runs as above. The check is the *nonlinear* model against
+the constraint the QP keeps linearised, so a passed step is at least as safe as a solved one;
+the statistics count the steps that passed.
 """
 from __future__ import annotations
 
@@ -45,13 +58,16 @@ import numpy as np
 from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
 from wt_inspect_env.policy import Policy
 
-from .rti import OCP
+from .rti import OCP, RTISolver, SolveStats
+from .rti.rollout import Rollout
 from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
 
 N_PARAMS = NU + 1   # the policy's command [p, q, r, T] and the stage-0 flag
 #: a filtered action that differs from the policy's by more than this (normalised, any component)
 #: counts as an intervention
 INTERVENTION_TOL = 1e-3
+#: the solve status of a step whose policy command passed the rollout check (no QP solved)
+PASSED = "PASSED_THROUGH"
 
 
 @dataclass(frozen=True)
@@ -83,6 +99,18 @@ class SafetyFilterConfig(MPCConfig):
     # a policy may tilt hard towards the structure: for 0.3 s (about the time to turn a tilted
     # drone round at the rate limit) the constraint lets it keep its acceleration before braking
     clearance_reaction: float = 0.3
+    # skip the QP when the policy's command followed by hover keeps the clearance constraint at
+    # every stage with this margin [m] to spare (see the module docstring)
+    pass_through: bool = True
+    pass_through_margin: float = 0.05
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if not isinstance(self.pass_through, bool):
+            raise ValueError(f"pass_through must be a bool, got {self.pass_through!r}")
+        m = self.pass_through_margin
+        if isinstance(m, bool) or not isinstance(m, (int, float)) or not (0.0 <= m < float("inf")):
+            raise ValueError(f"pass_through_margin must be a finite number >= 0 [m], got {m!r}")
 
 
 def build_ocp(config: SafetyFilterConfig) -> OCP:
@@ -114,9 +142,19 @@ class FilterMPC(RTIPolicy):
             raise ValueError("a safety filter needs obstacles: the turbine to keep d_min from "
                              "(a TurbineProximity or env.mission)")
         super().__init__(config, obstacles=obstacles, **overrides)
-        self._params = np.zeros((self.config.horizon + 1, N_PARAMS))
-        self._params[:, :NU] = self.config.hover_input
+        cfg = self.config
+        self._params = np.zeros((cfg.horizon + 1, N_PARAMS))
+        self._params[:, :NU] = cfg.hover_input
         self._params[0, NU] = 1.0
+        self._rollout: Rollout | None = None
+        if cfg.pass_through and self.clearance_active and isinstance(self.solver, RTISolver):
+            opts = self.solver.options
+            self._rollout = Rollout(self.ocp, compiled=opts.compiled, cache_dir=opts.cache_dir)
+            # the candidate: the policy's command (row 0, set per step), then hover; slack 0
+            self._candidate = np.zeros((cfg.horizon, self.ocp.nu))
+            self._candidate[:, :NU] = cfg.hover_input
+        #: steps whose policy command passed the rollout check (no QP) since the last reset
+        self.passed = 0
 
     def build_ocp(self, config: SafetyFilterConfig) -> OCP:
         """The filter's OCP."""
@@ -140,6 +178,37 @@ class FilterMPC(RTIPolicy):
             P[k, npar + 3] = cfg.d_min + cfg.clearance_backoff
         return P
 
+    def reset(self, seed: int | None = None) -> None:
+        """Reset the MPC and the pass-through count."""
+        super().reset(seed)
+        self.passed = 0
+
+    def _solve(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
+        """One filter step: the policy's command when the candidate passes the rollout check
+        (module docstring), else the QP's answer."""
+        if self._rollout is None:
+            return super()._solve(state, params)
+        t0 = time.perf_counter()
+        xm = self.model_state(state)
+        self._last_solve = (xm, params)
+        self._ahead = False
+        solver = self.solver
+        if not solver.initialized:
+            solver.initialize(xm)
+        P = self._with_clearance(params, xm)
+        U = self._candidate
+        U[0, :NU] = params[0, :NU]
+        states, margin = self._rollout(xm, U, P)
+        if float(margin.min()) >= self.config.pass_through_margin:   # NaN fails too
+            solver.initialize(xm, inputs=U, states=states)
+            u = self._finish_step(U[0].copy())
+            ms = (time.perf_counter() - t0) * 1e3
+            self.last_stats = SolveStats(solve_ms=ms, latency_ms=ms, status=PASSED, cost=0.0)
+            self.passed += 1
+            return u
+        solver.prepare(P)
+        return self._finish_step(solver.feedback(xm))
+
     def filter_command(self, command: np.ndarray, obs: Mapping[str, Any]) -> np.ndarray:
         """The filtered physical command for the policy's physical ``command``."""
         self._params[:, :NU] = np.asarray(command, dtype=np.float64).reshape(NU)
@@ -158,12 +227,14 @@ def _policy_action(policy: Any, obs: Mapping[str, Any]) -> np.ndarray:
 class FilterStats:
     """What the filter did since the last reset: steps, interventions (the action changed by more
     than :data:`INTERVENTION_TOL`), the summed |correction| (max-norm, normalised action),
-    fallbacks (QP failed: the backup plan flew) and the filter's own time per step [ms]."""
+    fallbacks (QP failed: the backup plan flew), steps passed through without a QP and the
+    filter's own time per step [ms]."""
 
     steps: int = 0
     interventions: int = 0
     correction_sum: float = 0.0
     fallbacks: int = 0
+    passed: int = 0
     times_ms: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, float]:
@@ -173,6 +244,7 @@ class FilterStats:
         return {"filter_steps": float(self.steps), "filter_interventions": float(self.interventions),
                 "filter_intervention_fraction": self.interventions / n,
                 "filter_mean_correction": self.correction_sum / n, "filter_fallbacks": float(self.fallbacks),
+                "filter_passed_fraction": self.passed / n,
                 "filter_median_ms": float(np.nanmedian(t)), "filter_p99_ms": float(np.nanpercentile(t, 99))}
 
 
@@ -221,6 +293,7 @@ class SafetyFilter(Policy):
         st.correction_sum += corr
         st.interventions += corr > INTERVENTION_TOL
         st.fallbacks += bool(getattr(self.mpc.last_stats, "fallback", False))
+        st.passed += getattr(self.mpc.last_stats, "status", "") == PASSED
         return out
 
     def predict(self, obs: Mapping[str, Any], state: Any = None, episode_start: Any = None,

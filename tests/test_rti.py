@@ -441,3 +441,28 @@ def test_tangential_predictor_is_the_qp_solution_while_the_active_set_holds(cach
     assert changed >= 1   # the active set did change for some of these measurements
     with pytest.raises(ValueError, match="tangential_predictor"):
         RTIOptions(tangential_predictor=True)   # needs qp_solver='hpipm'
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_rollout_is_the_ocp_stepped_stage_by_stage(cache_dir, compiled):
+    """The compiled rollout (the safety filter's pass-through check) against the OCP's own
+    dynamics called stage by stage, with stage-wise parameters, and its margins against the path
+    constraint's nearer bound (h in [-10, 1]: the upper side binds here)."""
+    from controllers.rti.rollout import Rollout
+    ocp = pendulum_ocp(horizon=12)
+    roll = Rollout(ocp, compiled=compiled, cache_dir=cache_dir)
+    rng = np.random.default_rng(3)
+    x0 = np.array([0.4, -0.2])
+    U = rng.uniform(-0.8, 0.8, (12, 1))
+    P = rng.uniform(-1.0, 1.0, (13, 1))
+    X, margin = roll(x0, U, P)
+    x = x0
+    for k in range(12):
+        np.testing.assert_allclose(X[k], x, rtol=0, atol=1e-12)
+        h = float(ocp.path_constraint(x, U[k], P[k]))
+        assert margin[k, 0] == pytest.approx(min(h + 10.0, 1.0 - h), abs=1e-12)
+        x = np.asarray(ocp.dynamics(x, U[k], P[k])).ravel()
+    np.testing.assert_allclose(X[12], x, rtol=0, atol=1e-12)
+    # a violated bound is a negative margin: push the angle past h_upper = 1
+    X, margin = roll(np.array([1.5, 0.0]), np.full((12, 1), 0.8), P)
+    assert margin[0, 0] == pytest.approx(1.0 - (1.5 + 0.16), abs=1e-12) and margin[0, 0] < 0

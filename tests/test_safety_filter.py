@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import wt_inspect_env  # noqa: F401 - registers the env ids
-from controllers.safety_filter import SafetyFilter
+from controllers.safety_filter import INTERVENTION_TOL, SafetyFilter
 from wt_inspect.evaluation import registry
 from wt_inspect.studies import safety_filter as adv
 
@@ -84,5 +84,56 @@ def test_a_policy_without_act_or_predict_is_refused():
     try:
         with pytest.raises(ValueError, match="act\\(obs\\) or predict"):
             SafetyFilter(object(), env)
+    finally:
+        env.close()
+
+
+def test_a_passed_step_is_the_qps_own_answer():
+    """Pass-through skips the QP only where the QP would return the policy's command: beside the
+    filter that passes, a filter with pass-through off is fed the same observations; on every
+    passed step its QP answer is the policy's command (to the QP's tolerance), the flight - VT-NMPC+
+    on the paper mission in the 7 m/s gust, 6 s - passes most steps, and a policy driven at the
+    tower is not passed through while the filter corrects it."""
+    env = gym.make("WindTurbineInspection-v0", wind={"type": "gust", "mean_speed": 7.0}, time_limit_s=6.0)
+    try:
+        u = env.unwrapped
+        fast = SafetyFilter(registry.resolve("vtnmpc-plus")(u), env)
+        slow = SafetyFilter(registry.resolve("vtnmpc-plus")(u), env, pass_through=False)
+        obs, _ = env.reset(seed=1)
+        fast.reset(1)
+        slow.reset(1)
+        passed = 0
+        while True:
+            a = fast.act(obs)
+            b = slow.act(obs)
+            if fast.mpc.last_stats.status == "PASSED_THROUGH":
+                passed += 1
+                np.testing.assert_array_equal(a, fast.last_policy_action.astype(np.float32))
+                # the QP's interior-point answer, within what would not count as an intervention
+                np.testing.assert_allclose(b, a, atol=INTERVENTION_TOL)
+            obs, _, term, trunc, _ = env.step(a)
+            if term or trunc:
+                break
+        assert slow.stats.passed == 0 and passed == fast.stats.passed > 0.5 * fast.stats.steps
+    finally:
+        env.close()
+    env = gym.make("WindTurbineInspection-v0", time_limit_s=adv.SECONDS + 5.0)
+    try:
+        scene = adv.Scene(env)
+        start = adv.draw_start(scene, np.random.default_rng([0, 0]))
+        pol = SafetyFilter(adv.ADVERSARIES["tower"](scene), env)
+        safe = adv.fly(scene, pol, start, seed=0)
+        assert safe["interventions"] > 0 and pol.stats.passed < pol.stats.steps - pol.stats.interventions + 1
+    finally:
+        env.close()
+
+
+@pytest.mark.parametrize("bad", [{"pass_through": 1}, {"pass_through_margin": -0.1},
+                                 {"pass_through_margin": float("nan")}, {"pass_through_margin": "0.1"}])
+def test_bad_pass_through_settings_name_the_field(bad):
+    env = gym.make("WindTurbineInspection-v0")
+    try:
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            SafetyFilter(registry.resolve("nmpc")(env.unwrapped), env, **bad)
     finally:
         env.close()
