@@ -93,10 +93,16 @@ def test_only_run_files_of_the_current_code_are_resumed(tmp_path):
     for name, code in (("old.npz", "0ld"), ("new.npz", "n3w")):
         np.savez_compressed(runs / name, meta=np.array(json.dumps({"code": code})))
     (runs / "broken.npz").write_bytes(b"not a run file")
+    chunks = tmp_path / "study" / "chunks"                     # a resumable study's finished chunks
+    chunks.mkdir()
+    (chunks / "old.json").write_text(json.dumps({"code": "0ld", "rows": []}))
+    (chunks / "bare.json").write_text(json.dumps([{"start": 0}]))     # older format: names no code
+    (chunks / "new.json").write_text(json.dumps({"code": "n3w", "rows": []}))
     log = io.StringIO()
-    assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", log) == 1
+    assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", log) == 3
     assert sorted(p.name for p in runs.iterdir()) == ["broken.npz", "new.npz"]
-    assert "discarded 1 run file(s)" in log.getvalue()
+    assert sorted(p.name for p in chunks.iterdir()) == ["new.json"]
+    assert "discarded 3 run or chunk file(s)" in log.getvalue()
     assert reproduce.discard_foreign_runs(tmp_path / "study", "n3w", io.StringIO()) == 0
 
 

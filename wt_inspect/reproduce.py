@@ -315,11 +315,13 @@ def plan(studies: list[Study], jobs: int | None, backend: str | None) -> list[tu
 
 
 def discard_foreign_runs(folder: Path, fingerprint: str, log=sys.stderr) -> int:
-    """Delete the run files under ``folder`` (in any ``runs`` directory) made by other code than
-    ``fingerprint``; returns how many. The commands resume from the run files they find, so
-    without this a study regenerated after a code change would be rebuilt from flights of the old
-    code while its provenance names the new one. Files whose metadata cannot be read are left to
-    the commands (they fly such runs again)."""
+    """Delete the run files under ``folder`` (in any ``runs`` directory) and the finished chunk
+    files (in any ``chunks`` directory: ``{"code": ..., "rows": [...]}``) made by other code than
+    ``fingerprint``; returns how many. The commands resume from the files they find, so without
+    this a study regenerated after a code change would be rebuilt from flights of the old code
+    while its provenance names the new one. Run files whose metadata cannot be read are left to
+    the commands (they fly such runs again); a chunk that names no code (an older bare list of
+    rows, which its command would read) is discarded."""
     n = 0
     for path in sorted(folder.rglob("runs/*.npz")):
         try:
@@ -330,8 +332,16 @@ def discard_foreign_runs(folder: Path, fingerprint: str, log=sys.stderr) -> int:
         if code != fingerprint:
             path.unlink()
             n += 1
+    for path in sorted(folder.rglob("chunks/*.json")):
+        try:
+            doc = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        if not isinstance(doc, dict) or doc.get("code") != fingerprint:
+            path.unlink()
+            n += 1
     if n:
-        print(f"reproduce: discarded {n} run file(s) under {folder} made by other code than {fingerprint}",
+        print(f"reproduce: discarded {n} run or chunk file(s) under {folder} made by other code than {fingerprint}",
               file=log, flush=True)
     return n
 

@@ -42,9 +42,9 @@ CSV_COLUMNS = ("scenario", "controller", "wind", "seed", "coverage", "safety", "
                "energy_wh", "mean_power_w", "solve_median_ms", "solve_p99_ms", "act_median_ms", "act_p99_ms",
                "termination", "mission_complete", "stalls", "skipped_path_m", "steps", "sim_time", "wall_time",
                "run_file", "filter_intervention_fraction", "filter_mean_correction", "filter_fallbacks",
-               "filter_median_ms", "filter_p99_ms")
+               "filter_passed_fraction", "filter_median_ms", "filter_p99_ms")
 #: the safety filter's columns (NaN for a run flown without it; see controllers.safety_filter)
-FILTER_COLUMNS = CSV_COLUMNS[-5:]
+FILTER_COLUMNS = CSV_COLUMNS[-6:]
 PAPER_ORDER = ("nmpc", "pampc", "vtnmpc")
 
 
@@ -297,12 +297,14 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     filtered = [r for r in rows if math.isfinite(float(r.get("filter_median_ms", math.nan)))]
     if filtered:
         lines += ["", "## Safety filter", "",
-                  "| controller | wind | seed | interventions | mean correction | fallbacks | filter median / p99 |",
-                  "|---|---:|---:|---:|---:|---:|---:|"]
+                  "| controller | wind | seed | interventions | mean correction | fallbacks | passed without QP "
+                  "| filter median / p99 |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for r in filtered:
             lines.append(f"| {display_name(r['controller'])} | {r['wind']:g} | {r['seed']} | "
                          f"{_pct(r['filter_intervention_fraction'])} | {r['filter_mean_correction']:.3f} | "
-                         f"{r['filter_fallbacks']:.0f} | {_ms(r['filter_median_ms'])} / {_ms(r['filter_p99_ms'])} |")
+                         f"{r['filter_fallbacks']:.0f} | {_pct(r.get('filter_passed_fraction', math.nan))} | "
+                         f"{_ms(r['filter_median_ms'])} / {_ms(r['filter_p99_ms'])} |")
     paper_src = {"paper": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text (distances; "
                           "100 % coverage for all at 0 m/s)",
                  "paper-faithful": "the paper's Table \"Simulation results\" (Gazebo, 4 m/s) and its text, beside "

@@ -37,7 +37,7 @@ WINDS: tuple[Mapping[str, Any] | str, ...] = (
 TOLERANCE = 0.1
 CHUNK = 50
 FIELDS = ("start", "adversary", "wind", "filtered", "min_clearance_m", "steps_below", "collided", "termination",
-          "interventions", "fallbacks", "filter_median_ms", "filter_p99_ms")
+          "interventions", "fallbacks", "passed", "filter_median_ms", "filter_p99_ms")
 
 
 class Scene:
@@ -197,6 +197,7 @@ def fly(scene: Scene, policy: Any, start: np.ndarray, seed: int, seconds: float 
     if stats is not None:
         s = stats.as_dict()
         out.update(interventions=s["filter_interventions"], fallbacks=s["filter_fallbacks"],
+                   passed=int(round(s["filter_passed_fraction"] * s["filter_steps"])),
                    filter_median_ms=round(s["filter_median_ms"], 4), filter_p99_ms=round(s["filter_p99_ms"], 4))
     return out
 
@@ -244,6 +245,18 @@ def trajectory(flight: Mapping[str, Any], seconds: float) -> tuple[np.ndarray, n
     return a[:, 0], a[:, 1:4], a[:, 4:7]
 
 
+def read_chunk(path: Path) -> list[dict[str, Any]] | None:
+    """The rows of a finished chunk file, or None when there is none. A chunk records the code
+    that flew it (``{"code": ..., "rows": [...]}``, like the run files' metadata) so that
+    ``wt-inspect reproduce`` discards the chunks of other code; an older bare list is read too."""
+    try:
+        doc = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    rows = doc.get("rows") if isinstance(doc, dict) else doc
+    return rows if isinstance(rows, list) else None
+
+
 def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list[dict[str, Any]]:
     """Fly every adversary from ``starts`` starts, unfiltered and filtered (resumes from the
     chunk files in ``out/chunks``); returns every row."""
@@ -251,7 +264,9 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
     from tqdm import tqdm
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
+    from wt_inspect.evaluation.runner import code_fingerprint
     from wt_inspect_env.util.atomic_io import write_text_atomic
+    code = code_fingerprint()
     chunks = out / "chunks"
     chunks.mkdir(parents=True, exist_ok=True)
     scenes: dict[int, Scene] = {}
@@ -261,8 +276,9 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
         for c0 in range(0, starts, CHUNK):
             path = chunks / f"starts_{c0:05d}.json"
             n = min(CHUNK, starts - c0)
-            if path.is_file():
-                rows += json.loads(path.read_text())
+            done = read_chunk(path)
+            if done is not None:
+                rows += done
                 bar.update(n)
                 continue
             got = []
@@ -277,7 +293,7 @@ def run(starts: int, out: Path, *, seed: int = 0, progress: bool = True) -> list
                     got.append({"start": k, "adversary": name, "wind": json.dumps(WINDS[w]), "filtered": filtered,
                                 **fly(scene, _policy(scene, k, filtered), start, seed=k)})
                 bar.update(1)
-            write_text_atomic(path, json.dumps(got) + "\n")
+            write_text_atomic(path, json.dumps({"code": code, "rows": got}) + "\n")
             rows += got
     finally:
         bar.close()

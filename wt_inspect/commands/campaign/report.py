@@ -91,6 +91,10 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
            f"{100 * s['filter']['filter_intervention_fraction']['median']:.2f} "
            f"[{100 * s['filter']['filter_intervention_fraction']['min']:.2f} - "
            f"{100 * s['filter']['filter_intervention_fraction']['max']:.2f}] | - |",
+           f"| safety filter: steps passed without a QP [%], median [min - max] over episodes | "
+           f"{100 * s['filter']['filter_passed_fraction']['median']:.2f} "
+           f"[{100 * s['filter']['filter_passed_fraction']['min']:.2f} - "
+           f"{100 * s['filter']['filter_passed_fraction']['max']:.2f}] | - |",
            f"| safety filter: fallbacks (QP failed, backup plan flown) | "
            f"{s['filter']['filter_fallbacks']['mean'] * s['filter']['filter_fallbacks']['n']:.0f} in all | 0 |",
            f"| safety filter: time per step, median of the episodes' median / p99 [ms] | "

@@ -31,8 +31,8 @@ COLUMNS = ("episode", "seed", "turbine", "turbine_scale", "wind", "wind_directio
 # The per-episode metrics whose distribution is reported: column, label, unit, scale, worse when
 # ("low" / "high").
 #: a safety filter's counts per episode (controllers.safety_filter; only for NAME+filter)
-FILTER_FIELDS = ("filter_intervention_fraction", "filter_mean_correction", "filter_fallbacks", "filter_median_ms",
-                 "filter_p99_ms")
+FILTER_FIELDS = ("filter_intervention_fraction", "filter_mean_correction", "filter_fallbacks",
+                 "filter_passed_fraction", "filter_median_ms", "filter_p99_ms")
 
 
 METRICS: tuple[tuple[str, str, str, float, str], ...] = (
