@@ -21,17 +21,30 @@ to the step before.
 The clearance constraint is the MPCs' with one addition (``clearance_reaction``, 0.3 s): a
 policy may tilt hard towards the structure, and a tilted drone needs time to turn round before it
 can brake, so for that time the constraint assumes the drone keeps its present acceleration (the
-thrust along its body axis plus gravity) and only then brakes. The ground counts as a surface too:
-where it is nearer than the turbine, its half-space z >= d_min replaces the turbine's.
+thrust along its body axis plus gravity) and only then brakes. Which half-space each stage keeps
+differs from the MPCs', whose drone flies at the stand-off: the nearest surface is not always the
+one a policy flies at. A policy flying along a nacelle towards the tower sees the nacelle nearest
+until the tower is inside its stopping distance (a campaign flight reached 12 m/s along the
+nacelle and hit the tower). So each looked-up stage has three candidates - the supporting
+half-space at the stage's position, the one at a *look-ahead point* towards its stopping point
+(along the velocity, by the distance the constraint says it needs to stop - reaction plus braking
+- but at most ``LOOKAHEAD_FRACTION`` of the stage's clearance: one sphere-tracing step, so the
+point is certainly outside the structure), and the ground's (z >= d_min) - and keeps the one that
+leaves the least margin for that stage's state. Each is a supporting half-space of the nearest
+convex part of the mesh to a point outside it (or the ground), so any of them keeps the position
+d_min from that part; choosing the tightest sees the surface ahead in time. (Taking the stopping
+point itself would be wrong where it lies inside the structure: its closest point's half-space
+faces the wrong way.)
 
 Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
 see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
 strong wind while a policy pulls it down can be held only just above the ground; both show as
 flights that dip below d_min without colliding.
 
-When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan),
-then hover - never the unfiltered command; :class:`SafetyFilter` counts every intervention and
-every such fallback.
+When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan);
+once that is used up, the filter levels the drone and brakes (:func:`brake_command`) where the
+RTI core's generic last resort would hover with zero body rates - never the unfiltered command;
+:class:`SafetyFilter` counts every intervention and every such fallback.
 
 Pass-through (``pass_through``, on by default). Most steps of a policy that flies its mission at
 the stand-off need no correction, and solving the QP to learn that is most of the filter's time.
@@ -55,7 +68,8 @@ from typing import Any, ClassVar, Mapping
 import casadi as ca
 import numpy as np
 
-from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat
+from wt_inspect_env.physics.dynamics import NU, NX, QuadrotorModel, quat_to_rotmat, quat_to_rotmat_np
+from wt_inspect_env.physics.quadrotor import GRAVITY
 from wt_inspect_env.policy import Policy
 
 from .rti import OCP, RTISolver, SolveStats
@@ -68,6 +82,14 @@ N_PARAMS = NU + 1   # the policy's command [p, q, r, T] and the stage-0 flag
 INTERVENTION_TOL = 1e-3
 #: the solve status of a step whose policy command passed the rollout check (no QP solved)
 PASSED = "PASSED_THROUGH"
+#: the last-resort brake (:func:`brake_command`): time constant [s] of the deceleration, attitude
+#: gain [1/s] (the adversarial study's attitude loop uses the same gain), deceleration cap as a
+#: multiple of ``clearance_brake``
+BRAKE_TIME = 0.5
+BRAKE_ATTITUDE_GAIN = 6.0
+BRAKE_FACTOR = 2.0
+#: the look-ahead point of a stage lies at most this fraction of the stage's clearance ahead
+LOOKAHEAD_FRACTION = 0.9
 
 
 @dataclass(frozen=True)
@@ -111,6 +133,28 @@ class SafetyFilterConfig(MPCConfig):
         m = self.pass_through_margin
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not (0.0 <= m < float("inf")):
             raise ValueError(f"pass_through_margin must be a finite number >= 0 [m], got {m!r}")
+
+
+def brake_command(state: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
+    """The physical command [p, q, r, T] that levels a drone towards braking: the body z axis
+    turned (at ``BRAKE_ATTITUDE_GAIN`` rad/s per rad) onto the thrust direction of the
+    deceleration -v / ``BRAKE_TIME`` (capped at ``BRAKE_FACTOR`` times the braking acceleration
+    the clearance constraint assumes, so it stops within what the constraint allowed for) plus
+    gravity, no yaw rate, the thrust of that force along the present body axis, all within
+    the command bounds. What the filter flies when its QP has failed for a whole horizon: the RTI
+    core's generic last resort (hover: zero rates) holds a tilted drone's tilt, and a drone that
+    a policy had tilted hard then accelerates away."""
+    R = quat_to_rotmat_np(state[6:10])
+    v = R @ state[3:6]
+    a = -v / BRAKE_TIME
+    n = float(np.linalg.norm(a))
+    if n > BRAKE_FACTOR * config.clearance_brake:
+        a *= BRAKE_FACTOR * config.clearance_brake / n
+    f = config.params.mass * (a + np.array([0.0, 0.0, GRAVITY]))
+    z_des = f / float(np.linalg.norm(f))
+    rates = BRAKE_ATTITUDE_GAIN * (R.T @ np.cross(R[:, 2], z_des))
+    return np.clip(np.array([rates[0], rates[1], 0.0, float(f @ R[:, 2])]),
+                   config.scaling.lower, config.scaling.upper)
 
 
 def build_ocp(config: SafetyFilterConfig) -> OCP:
@@ -165,17 +209,48 @@ class FilterMPC(RTIPolicy):
         return self._params
 
     def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """The turbine's half-spaces (:class:`~controllers.rti_policy.RTIPolicy`), each replaced by
-        the ground's (z >= d_min + back-off) where the ground is nearer than the turbine to the
-        looked-up position."""
-        P = super()._with_clearance(params, x0)
-        pos, c = self._lookup[0], self._lookup[1]
-        ground = pos[:, 2] < np.linalg.norm(pos - c, axis=1)
-        if ground.any():
-            k = ground[self._stage_query]
-            npar, cfg = self.base_ocp.np, self.config
-            P[k, npar:npar + 3] = (0.0, 0.0, 1.0)
-            P[k, npar + 3] = cfg.d_min + cfg.clearance_backoff
+        """The solver's parameters with each stage's half-space (see the module docstring):
+        of the supporting half-spaces at the plan's position and at its stopping point, and the
+        ground's (z >= 0), the one that leaves the least margin."""
+        solver = self.solver
+        if not isinstance(solver, RTISolver) or not solver.initialized:
+            return super()._with_clearance(params, x0)
+        P = self._stage_params
+        npar, cfg = self.base_ocp.np, self.config
+        P[:, :npar] = params
+        plan = solver.state_view[self._query_stages]          # (a copy: fancy indexing)
+        plan[self._query_stages == 0] = x0[:plan.shape[1]]
+        pos = plan[:, 0:3]
+        vel = np.einsum("qij,qj->qi", quat_to_rotmat_np(plan[:, 6:10]), plan[:, 3:6])
+        last = self._lookup
+        if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
+                or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
+            speed = np.linalg.norm(vel, axis=1)
+            reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
+            q = len(pos)
+            c0, d0, n0 = self.obstacles.closest(pos)
+            # one sphere-tracing step towards the stopping point: within LOOKAHEAD_FRACTION of the
+            # free ball around the position, so the point is outside the structure and its
+            # closest point gives a supporting half-space
+            step = np.minimum(reach, LOOKAHEAD_FRACTION * d0) / np.maximum(speed, 1e-9)
+            c1, d1, n1 = self.obstacles.closest(pos + vel * step[:, None])
+            c, d, n = np.concatenate([c0, c1]), np.concatenate([d0, d1]), np.concatenate([n0, n1])
+            self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+            # candidates per query stage: [at the position, at the stopping point, the ground]
+            cn = np.stack([n[:q], n[q:], np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
+            off = np.stack([np.einsum("ij,ij->i", n[:q], c[:q]), np.einsum("ij,ij->i", n[q:], c[q:]),
+                            np.zeros(q)], axis=1) + (cfg.d_min + cfg.clearance_backoff)
+            v_n = np.einsum("qij,qj->qi", cn, vel)
+            approach = np.maximum(0.0, -v_n)
+            margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
+                      - approach ** 2 / (2.0 * cfg.clearance_brake))
+            pick = margin.argmin(axis=1)
+            rows = np.arange(q)
+            k = self._stage_query
+            self._lookup = last = (pos, c[:q], n[:q], self.obstacles.index, float(min(d.min(), pos[:, 2].min())),
+                                   cn[rows, pick][k], off[rows, pick][k])
+        P[:, npar:npar + 3] = last[5]
+        P[:, npar + 3] = last[6]
         return P
 
     def reset(self, seed: int | None = None) -> None:
@@ -207,7 +282,12 @@ class FilterMPC(RTIPolicy):
             self.passed += 1
             return u
         solver.prepare(P)
-        return self._finish_step(solver.feedback(xm))
+        u = solver.feedback(xm)
+        if solver.last_stats.fallback_source == "hover":      # no backup plan left: brake instead
+            u = u.copy()
+            u[:NU] = brake_command(xm, self.config)
+            solver.last_stats.fallback_source = "brake"
+        return self._finish_step(u)
 
     def filter_command(self, command: np.ndarray, obs: Mapping[str, Any]) -> np.ndarray:
         """The filtered physical command for the policy's physical ``command``."""

@@ -137,3 +137,38 @@ def test_bad_pass_through_settings_name_the_field(bad):
             SafetyFilter(registry.resolve("nmpc")(env.unwrapped), env, **bad)
     finally:
         env.close()
+
+
+def test_the_last_resort_brake_levels_a_tilted_drone_and_stops_it():
+    """What the filter flies once a failed QP's backup plan is used up: from 10 m/s, tilted 40 deg
+    into the motion and rolling, the filter's own model (its OCP dynamics, 10 ms stages) under
+    :func:`brake_command` comes to rest (6 s) within the stopping distance the filter's constraint
+    allows for, and holds its altitude to within a few metres (the RTI core's generic last resort,
+    hover with zero rates, keeps the tilt and accelerates away)."""
+    from controllers.safety_filter import FilterMPC, brake_command
+    env = gym.make("WindTurbineInspection-v0")
+    try:
+        mpc = SafetyFilter(registry.resolve("nmpc")(env.unwrapped), env).mpc
+    finally:
+        env.close()
+    assert isinstance(mpc, FilterMPC)
+    f = mpc.base_ocp.dynamics
+    p = np.zeros(mpc.base_ocp.np)
+    half = np.radians(40.0) / 2                                   # pitched 40 deg towards +x
+    x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, np.sin(half), 0.0, np.cos(half)])
+    from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+    x[3:6] = quat_to_rotmat_np(x[6:10]).T @ np.array([10.0, 0.0, 0.0])   # 10 m/s along +x
+    travel = 0.0
+    for _ in range(600):
+        u = brake_command(x, mpc.config)
+        assert np.all(u >= mpc.config.scaling.lower) and np.all(u <= mpc.config.scaling.upper)
+        x = np.asarray(f(x, u, p)).ravel()
+        travel = max(travel, x[0])
+    v = quat_to_rotmat_np(x[6:10]) @ x[3:6]
+    assert np.linalg.norm(v) < 0.2 and abs(x[2] - 50.0) < 5.0
+    # within the stopping distance the filter's constraint allows for: clearance_reaction at the
+    # present acceleration (g tan 40 deg along the motion), then clearance_brake
+    cfg = mpc.config
+    a0, t_r = 9.81 * np.tan(np.radians(40.0)), cfg.clearance_reaction
+    v_r = 10.0 + a0 * t_r
+    assert travel < 10.0 * t_r + 0.5 * a0 * t_r ** 2 + v_r ** 2 / (2 * cfg.clearance_brake)
