@@ -172,3 +172,32 @@ def test_the_last_resort_brake_levels_a_tilted_drone_and_stops_it():
     a0, t_r = 9.81 * np.tan(np.radians(40.0)), cfg.clearance_reaction
     v_r = 10.0 + a0 * t_r
     assert travel < 10.0 * t_r + 0.5 * a0 * t_r ** 2 + v_r ** 2 / (2 * cfg.clearance_brake)
+
+
+def _wall(x0, y0, x1, y1, normal):
+    """Two triangles of a vertical wall from (x0, y0) to (x1, y1), z in [0, 100], facing ``normal``."""
+    a, b = np.array([x0, y0, 0.0]), np.array([x1, y1, 0.0])
+    up = np.array([0.0, 0.0, 100.0])
+    tris = np.array([[a, b, b + up], [a, b + up, a + up]])
+    n = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    return tris if np.dot(n[0], normal) > 0 else tris[:, ::-1]
+
+
+@pytest.mark.parametrize("speed,facing", [(0.0, (1.0, 0.0, 0.0)), (8.0, (0.0, -1.0, 0.0))])
+def test_a_stage_keeps_clear_of_the_surface_it_flies_at(speed, facing):
+    """An inside corner: wall A (x = 0, facing +x) 4 m to the side, wall B (y = 6, facing -y) 6 m
+    ahead. At rest the filter keeps the nearest wall, A; flying at B at 8 m/s (its stopping distance
+    far beyond 6 m) it keeps B, which it would not see from its position (A is nearer) - the
+    look-ahead point towards its stopping point finds it. Both are the exact supporting planes:
+    offset n.c + d_min + back-off."""
+    from controllers.safety_filter import FilterMPC
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = np.concatenate([_wall(0, -50, 0, 6, (1, 0, 0)), _wall(0, 6, 50, 6, (0, -1, 0))])
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]))
+    x0 = np.array([4.0, 0.0, 50.0, 0.0, speed, 0.0, 0.0, 0.0, 0.0, 1.0])    # level, flying +y
+    mpc.solver.initialize(x0)
+    P = mpc._with_clearance(np.zeros((mpc.config.horizon + 1, mpc.base_ocp.np)), x0)
+    npar, cfg = mpc.base_ocp.np, mpc.config
+    np.testing.assert_allclose(P[0, npar:npar + 3], facing, atol=1e-9)
+    plane = 0.0 if facing[0] else -6.0                                     # n.c of the wall
+    assert P[0, npar + 3] == pytest.approx(plane + cfg.d_min + cfg.clearance_backoff)
