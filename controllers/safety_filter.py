@@ -25,13 +25,12 @@ thrust along its body axis plus gravity) and only then brakes. Which half-space 
 differs from the MPCs', whose drone flies at the stand-off: the nearest surface is not always the
 one a policy flies at. A policy flying along a nacelle towards the tower sees the nacelle nearest
 until the tower is inside its stopping distance (a campaign flight reached 12 m/s along the
-nacelle and hit the tower). So each looked-up stage has several candidates - the supporting
-half-space at the stage's position, those at *look-ahead points* towards its stopping point
+nacelle and hit the tower). So each looked-up stage has three candidates - the supporting
+half-space at the stage's position, the one at a *look-ahead point* towards its stopping point
 (along the velocity, by the distance the constraint says it needs to stop - reaction plus braking
-- traced like a sphere tracer: each step at most ``LOOKAHEAD_FRACTION`` of the last point's
-clearance, so every point is certainly outside the structure; up to ``LOOKAHEAD_STEPS`` steps),
-and the ground's (z >= d_min) - and keeps the one that leaves the least margin for that stage's
-state. Each is a supporting half-space of the nearest
+- but at most ``LOOKAHEAD_FRACTION`` of the stage's clearance: one sphere-tracing step, so the
+point is certainly outside the structure), and the ground's (z >= d_min) - and keeps the one that
+leaves the least margin for that stage's state. Each is a supporting half-space of the nearest
 convex part of the mesh to a point outside it (or the ground), so any of them keeps the position
 d_min from that part; choosing the tightest sees the surface ahead in time. (Taking the stopping
 point itself would be wrong where it lies inside the structure: its closest point's half-space
@@ -89,11 +88,8 @@ PASSED = "PASSED_THROUGH"
 BRAKE_TIME = 0.5
 BRAKE_ATTITUDE_GAIN = 6.0
 BRAKE_FACTOR = 2.0
-#: the look-ahead (sphere tracing towards a stage's stopping point): each step at most this
-#: fraction of the last point's clearance, at most this many steps, none shorter than this [m]
+#: the look-ahead point of a stage lies at most this fraction of the stage's clearance ahead
 LOOKAHEAD_FRACTION = 0.9
-LOOKAHEAD_STEPS = 4
-LOOKAHEAD_MIN_STEP = 0.05
 
 
 @dataclass(frozen=True)
@@ -137,11 +133,6 @@ class SafetyFilterConfig(MPCConfig):
         m = self.pass_through_margin
         if isinstance(m, bool) or not isinstance(m, (int, float)) or not (0.0 <= m < float("inf")):
             raise ValueError(f"pass_through_margin must be a finite number >= 0 [m], got {m!r}")
-
-
-def _dots(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise dot products of two (P, 3) arrays."""
-    return np.einsum("ij,ij->i", a, b)
 
 
 def brake_command(state: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
@@ -235,29 +226,20 @@ class FilterMPC(RTIPolicy):
         if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
                 or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
             speed = np.linalg.norm(vel, axis=1)
-            remaining = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
-            ahead = vel / np.maximum(speed, 1e-9)[:, None]
+            reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
             q = len(pos)
             c0, d0, n0 = self.obstacles.closest(pos)
-            self.last_clearance = float(d0[0]) if self._query_stages[0] == 0 else float("nan")
-            # candidates per query stage: the ground, the position and each look-ahead point
-            ns, offs, dmin = [np.broadcast_to((0.0, 0.0, 1.0), (q, 3)), n0], [np.zeros(q), _dots(n0, c0)], d0.min()
-            # sphere tracing towards the stopping point: each step stays inside LOOKAHEAD_FRACTION
-            # of the free ball around the last point, so every point is outside the structure
-            # and its closest point gives a supporting half-space
-            at, clear = pos, d0
-            for _ in range(LOOKAHEAD_STEPS):
-                step = np.minimum(remaining, LOOKAHEAD_FRACTION * clear)
-                if float(step.max()) < LOOKAHEAD_MIN_STEP:
-                    break
-                at = at + ahead * step[:, None]
-                remaining = remaining - step
-                c1, clear, n1 = self.obstacles.closest(at)
-                ns.append(n1)
-                offs.append(_dots(n1, c1))
-                dmin = min(dmin, float(clear.min()))
-            cn = np.stack(ns, axis=1)
-            off = np.stack(offs, axis=1) + (cfg.d_min + cfg.clearance_backoff)
+            # one sphere-tracing step towards the stopping point: within LOOKAHEAD_FRACTION of the
+            # free ball around the position, so the point is outside the structure and its
+            # closest point gives a supporting half-space
+            step = np.minimum(reach, LOOKAHEAD_FRACTION * d0) / np.maximum(speed, 1e-9)
+            c1, d1, n1 = self.obstacles.closest(pos + vel * step[:, None])
+            c, d, n = np.concatenate([c0, c1]), np.concatenate([d0, d1]), np.concatenate([n0, n1])
+            self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+            # candidates per query stage: [at the position, at the stopping point, the ground]
+            cn = np.stack([n[:q], n[q:], np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
+            off = np.stack([np.einsum("ij,ij->i", n[:q], c[:q]), np.einsum("ij,ij->i", n[q:], c[q:]),
+                            np.zeros(q)], axis=1) + (cfg.d_min + cfg.clearance_backoff)
             v_n = np.einsum("qij,qj->qi", cn, vel)
             approach = np.maximum(0.0, -v_n)
             margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
@@ -265,7 +247,7 @@ class FilterMPC(RTIPolicy):
             pick = margin.argmin(axis=1)
             rows = np.arange(q)
             k = self._stage_query
-            self._lookup = last = (pos, c0, n0, self.obstacles.index, min(dmin, float(pos[:, 2].min())),
+            self._lookup = last = (pos, c[:q], n[:q], self.obstacles.index, float(min(d.min(), pos[:, 2].min())),
                                    cn[rows, pick][k], off[rows, pick][k])
         P[:, npar:npar + 3] = last[5]
         P[:, npar + 3] = last[6]
