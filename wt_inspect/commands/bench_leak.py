@@ -19,6 +19,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from wt_inspect_env.util.process_memory import release_free_heap
+
 from .timing_reference import rss_mb
 
 TASK_IDS = {"full": "WindTurbineInspection-v0", "blade": "WindTurbineInspection-Blade-v0",
@@ -45,16 +47,22 @@ def measure_make_close(cycles: int, task: str = "surface", warmup: int = 3,
         finally:
             env.close()
 
+    def settled_rss() -> float:
+        # what is still allocated: without the trim, glibc keeps a large freed block (of a
+        # surface mission's set-up) mapped or not depending on the heap's layout, and the resident
+        # set of identical cycles jumped between two levels
+        gc.collect()
+        release_free_heap()
+        return rss_mb()
+
     for i in range(warmup):
         cycle(i)
-    gc.collect()
-    rss0 = rss_mb()
+    rss0 = settled_rss()
     samples = []
     t0 = time.perf_counter()
     for i in range(cycles):
         cycle(i)
-        gc.collect()
-        samples.append(rss_mb())
+        samples.append(settled_rss())
     wall = time.perf_counter() - t0
     x = np.arange(1, cycles + 1, dtype=float)
     slope_mb = float(np.polyfit(x, np.asarray(samples), 1)[0])
