@@ -136,6 +136,11 @@ def test_two_episode_campaign_writes_everything(tmp_path) -> None:
     assert again["wall_time_invocations_s"] == [doc["wall_time_s"], again["wall_time_this_invocation_s"]]
     assert again["wall_time_s"] == pytest.approx(doc["wall_time_s"] + again["wall_time_this_invocation_s"])
     assert f"{again['wall_time_s']:.1f} s over 2 invocation(s)" in (out / "results.md").read_text()
+    # run files discarded (as wt-inspect reproduce does for other code): flown afresh, only this cost
+    for f in (out / "runs").glob("*.npz"):
+        f.unlink()
+    fresh = cp.run_campaign(cfg, out, jobs=1, progress=False)
+    assert fresh["wall_time_invocations_s"] == [fresh["wall_time_this_invocation_s"]]
 
 
 @pytest.mark.slow

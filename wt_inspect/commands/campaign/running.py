@@ -112,9 +112,11 @@ def _fly_campaign(cfg: CampaignConfig, out_dir: Path, specs: list[RunSpec], draw
                   t0: float, backend: str, jobs: int, address: str | None, progress: bool, figure: bool,
                   command: str, out: str) -> dict[str, Any]:
     by_file = {s.filename: d for s, d in zip(specs, draws)}
-    earlier = earlier_invocations(out_dir / "campaign.json", cfg)
     results, todo = resume_runs(out_dir / "runs", specs,
                                 warn=lambda m: print(f"warning: {m}", file=sys.stderr))
+    # the earlier invocations' cost counts only when their episodes are reused (not after their
+    # run files were discarded, e.g. by wt-inspect reproduce for other code)
+    earlier = earlier_invocations(out_dir / "campaign.json", cfg) if results else []
 
     def finished(res: RunResult) -> None:
         if res.arrays:
