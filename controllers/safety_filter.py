@@ -197,8 +197,6 @@ class FilterMPC(RTIPolicy):
             # the candidate: the policy's command (row 0, set per step), then hover; slack 0
             self._candidate = np.zeros((cfg.horizon, self.ocp.nu))
             self._candidate[:, :NU] = cfg.hover_input
-        #: steps whose policy command passed the rollout check (no QP) since the last reset
-        self.passed = 0
 
     def build_ocp(self, config: SafetyFilterConfig) -> OCP:
         """The filter's OCP."""
@@ -234,11 +232,10 @@ class FilterMPC(RTIPolicy):
             # closest point gives a supporting half-space
             step = np.minimum(reach, LOOKAHEAD_FRACTION * d0) / np.maximum(speed, 1e-9)
             c1, d1, n1 = self.obstacles.closest(pos + vel * step[:, None])
-            c, d, n = np.concatenate([c0, c1]), np.concatenate([d0, d1]), np.concatenate([n0, n1])
-            self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
-            # candidates per query stage: [at the position, at the stopping point, the ground]
-            cn = np.stack([n[:q], n[q:], np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
-            off = np.stack([np.einsum("ij,ij->i", n[:q], c[:q]), np.einsum("ij,ij->i", n[q:], c[q:]),
+            self.last_clearance = float(d0[0]) if self._query_stages[0] == 0 else float("nan")
+            # candidates per query stage: [at the position, at the look-ahead point, the ground]
+            cn = np.stack([n0, n1, np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
+            off = np.stack([np.einsum("ij,ij->i", n0, c0), np.einsum("ij,ij->i", n1, c1),
                             np.zeros(q)], axis=1) + (cfg.d_min + cfg.clearance_backoff)
             v_n = np.einsum("qij,qj->qi", cn, vel)
             approach = np.maximum(0.0, -v_n)
@@ -247,16 +244,11 @@ class FilterMPC(RTIPolicy):
             pick = margin.argmin(axis=1)
             rows = np.arange(q)
             k = self._stage_query
-            self._lookup = last = (pos, c[:q], n[:q], self.obstacles.index, float(min(d.min(), pos[:, 2].min())),
+            self._lookup = last = (pos, c0, n0, self.obstacles.index, float(min(d0.min(), d1.min(), pos[:, 2].min())),
                                    cn[rows, pick][k], off[rows, pick][k])
         P[:, npar:npar + 3] = last[5]
         P[:, npar + 3] = last[6]
         return P
-
-    def reset(self, seed: int | None = None) -> None:
-        """Reset the MPC and the pass-through count."""
-        super().reset(seed)
-        self.passed = 0
 
     def _solve(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
         """One filter step: the policy's command when the candidate passes the rollout check
@@ -279,7 +271,6 @@ class FilterMPC(RTIPolicy):
             u = self._finish_step(U[0].copy())
             ms = (time.perf_counter() - t0) * 1e3
             self.last_stats = SolveStats(solve_ms=ms, latency_ms=ms, status=PASSED, cost=0.0)
-            self.passed += 1
             return u
         solver.prepare(P)
         u = solver.feedback(xm)
