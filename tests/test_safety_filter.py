@@ -201,3 +201,47 @@ def test_a_stage_keeps_clear_of_the_surface_it_flies_at(speed, facing):
     np.testing.assert_allclose(P[0, npar:npar + 3], facing, atol=1e-9)
     plane = 0.0 if facing[0] else -6.0                                     # n.c of the wall
     assert P[0, npar + 3] == pytest.approx(plane + cfg.d_min + cfg.clearance_backoff)
+
+
+@pytest.mark.parametrize("speed", [0.0, 3.0, 10.0])
+def test_a_stage_flying_along_a_wall_must_stop_within_the_free_ray_ahead(speed):
+    """Wall A (x = 0) 3.6 m to the side, wall B (y = 12) ahead. Flying along A, A stays the nearest
+    surface at the position and at the look-ahead point (0.9 x 3.6 m ahead), so the first
+    half-space is A's whatever the speed; the second bounds the stop along the ray ahead by the
+    free length L = step + d1 the two balls prove (step: the stopping distance, at most 0.9 x 3.6 m;
+    inactive at rest). At 3 m/s the
+    drone stops within it (the policy's hover passes); at 10 m/s it cannot, and the filter brakes."""
+    from controllers.safety_filter import INACTIVE, FilterMPC
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = np.concatenate([_wall(0, -50, 0, 12, (1, 0, 0)), _wall(0, 12, 50, 12, (0, -1, 0))])
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]))
+    cfg = mpc.config
+    keep = cfg.d_min + cfg.clearance_backoff
+    x0 = np.array([3.6, 0.0, 50.0, 0.0, speed, 0.0, 0.0, 0.0, 0.0, 1.0])    # level, flying +y
+    # the plan: flying on at the speed (hover thrust, no slack)
+    plan = np.tile(x0, (cfg.horizon + 1, 1))
+    plan[:, 1] = speed * cfg.dt * np.arange(cfg.horizon + 1)
+    mpc.solver.initialize(x0, inputs=np.tile(mpc.ocp.fallback_input, (cfg.horizon, 1)), states=plan)
+    P = mpc._with_clearance(np.zeros((cfg.horizon + 1, mpc.base_ocp.np)), x0)
+    npar = mpc.base_ocp.np
+    np.testing.assert_allclose(P[0, npar:npar + 3], (1.0, 0.0, 0.0), atol=1e-9)
+    assert P[0, npar + 3] == pytest.approx(keep)
+    if speed == 0.0:
+        np.testing.assert_allclose(P[0, npar + 4:npar + 7], (0.0, 0.0, 1.0))
+        assert P[0, npar + 7] == -INACTIVE
+        return
+    np.testing.assert_allclose(P[0, npar + 4:npar + 7], (0.0, -1.0, 0.0), atol=1e-9)
+    reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
+    assert P[0, npar + 7] == pytest.approx(-(min(reach, 0.9 * 3.6) + 3.6) + keep, abs=1e-6)
+    obs = {"position": x0[0:3], "velocity_body": x0[3:6], "quaternion": x0[6:10], "body_rates": np.zeros(3),
+           "point": np.array([0.0, 0.0, 50.0]), "normal": np.array([1.0, 0.0, 0.0]),
+           "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+    hover = mpc.config.hover_input
+    u = mpc.filter_command(hover, obs)
+    if speed == 3.0:
+        assert mpc.last_stats.status == "PASSED_THROUGH"
+        np.testing.assert_allclose(u, hover, atol=1e-9)
+    else:
+        assert mpc.last_stats.status != "PASSED_THROUGH"
+        # braking along -y: tilt back (body x rate about -x for a level drone flying +y)
+        assert abs(u[0]) > 0.1 or u[3] > hover[3] + 0.1
