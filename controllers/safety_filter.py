@@ -47,6 +47,14 @@ constraint with ``half_spaces=2``, both relaxed by the one slack):
    room; the first half-space pushes out). Replacing the first half-space by it instead (tried)
    lets wind drift a slow drone into the nearest surface.
 
+Wind. Near a turbine the wind pushes the drone into the structure, and a model without it brakes
+too late. The filter runs the disturbance observer of the MPC base (``disturbance_observer``, on by
+default here: :meth:`~controllers.rti_policy.RTIPolicy.on_measurement`), feeds its world-frame
+estimate a_ext to its model, and its clearance constraint takes the part of a_ext that pushes
+towards each half-space's boundary off the braking deceleration (down to a quarter of
+``clearance_brake``) and adds it to the acceleration of the reaction time
+(:func:`controllers.rti_policy.clearance_ocp` with ``disturbance``).
+
 Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
 see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
 strong wind while a policy pulls it down can be held only just above the ground; both show as
@@ -87,7 +95,8 @@ from .rti import OCP, RTISolver, SolveStats
 from .rti.rollout import Rollout
 from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
 
-N_PARAMS = NU + 1   # the policy's command [p, q, r, T] and the stage-0 flag
+N_PARAMS = NU + 4   # the policy's command [p, q, r, T], the stage-0 flag, the disturbance a_ext (3)
+A_EXT = slice(NU + 1, NU + 4)
 #: a filtered action that differs from the policy's by more than this (normalised, any component)
 #: counts as an intervention
 INTERVENTION_TOL = 1e-3
@@ -140,6 +149,9 @@ class SafetyFilterConfig(MPCConfig):
     # every stage with this margin [m] to spare (see the module docstring)
     pass_through: bool = True
     pass_through_margin: float = 0.05
+    # the wind a drone meets near a turbine pushes it into the structure: the filter's model and
+    # its stopping distances take the observer's estimate into account (module docstring)
+    disturbance_observer: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -173,8 +185,9 @@ def brake_command(state: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
 
 
 def build_ocp(config: SafetyFilterConfig) -> OCP:
-    """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first]
-    with ``first`` 1 at stage 0 and 0 after."""
+    """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first,
+    a_ext (3)] with ``first`` 1 at stage 0 and 0 after and a_ext the observer's disturbance
+    acceleration (world frame)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     p = ca.SX.sym("p", N_PARAMS)
@@ -185,7 +198,8 @@ def build_ocp(config: SafetyFilterConfig) -> OCP:
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function("safety_filter_rN", [x, p], [quat_to_rotmat(x[6:10]) @ x[3:6]], ["x", "p"], ["rN"])
     model = QuadrotorModel(config.params)
-    dynamics = ca.Function("safety_filter_F", [x, u, p], [model.rk4_expr(x, u, config.dt, steps=config.rk4_steps)],
+    dynamics = ca.Function("safety_filter_F", [x, u, p],
+                           [model.rk4_expr(x, u, config.dt, a_ext=p[A_EXT], steps=config.rk4_steps)],
                            ["x", "u", "p"], ["x_next"])
     return config_ocp("safety_filter", config, dynamics, stage, terminal)
 
@@ -196,6 +210,7 @@ class FilterMPC(RTIPolicy):
 
     config_class = SafetyFilterConfig
     clearance_half_spaces = 2
+    clearance_disturbance = A_EXT
 
     def __init__(self, config: SafetyFilterConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
         if obstacles is None:
@@ -219,7 +234,9 @@ class FilterMPC(RTIPolicy):
         return build_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray, normal_xy: np.ndarray) -> np.ndarray:
-        """The parameters of the present filter step (the command it keeps close to, set per step)."""
+        """The parameters of the present filter step (the command it keeps close to, set per
+        step, and the observer's disturbance estimate)."""
+        self._params[:, A_EXT] = self._a_hat
         return self._params
 
     def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:

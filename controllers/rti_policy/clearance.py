@@ -42,9 +42,10 @@ from .config import MPCConfig
 
 N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
 SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
+BRAKE_FLOOR = 0.25            # a disturbance leaves at least this share of clearance_brake to brake with
 
 
-def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1) -> OCP:
+def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1, disturbance: slice | None = None) -> OCP:
     """``ocp`` with the soft clearance constraint of the module docstring: one slack input
     appended (within +-SLACK_UPPER, or [0, SLACK_UPPER] with an L1 price; fallback 0), its residual
     ``s + l1 / l2`` appended to the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const;
@@ -52,8 +53,10 @@ def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1) -> OCP:
     and ``half_spaces`` path constraints (each a half-space with its stopping distance, all relaxed
     by the one slack) on stage parameters appended to the OCP's own: [n_j (3), b_j] per half-space.
     The MPCs keep one (the nearest surface); the safety filter adds a second (see
-    :mod:`controllers.safety_filter`). The first 10 states must be the drone's [p, v_B, q]
-    (augmented states keep them first)."""
+    :mod:`controllers.safety_filter`). ``disturbance``: where the OCP's own parameters hold a
+    world-frame disturbance acceleration (an observer's estimate) that the stopping distance then
+    accounts for (:func:`_half_space`); None: none (the MPCs). The first 10 states must be the
+    drone's [p, v_B, q] (augmented states keep them first)."""
     if ocp.nh:
         raise ValueError(f"the clearance constraint cannot be added to OCP {ocp.name!r}: it already has "
                          f"{ocp.nh} path constraints")
@@ -72,10 +75,11 @@ def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1) -> OCP:
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
     R = quat_to_rotmat(x[6:10])
+    a_ext = None if disturbance is None else pc[disturbance]
     rows = []
     for j in range(half_spaces):
         o = npar + N_CLEARANCE_PARAMS * j
-        rows.append(_half_space(p[o:o + 3], p[o + 3], x, uc, R, config) + slack)
+        rows.append(_half_space(p[o:o + 3], p[o + 3], x, uc, R, config, a_ext) + slack)
     path = ca.Function(f"{name}_h", [x, u, p], [ca.vertcat(*rows)], ["x", "u", "p"], ["h"])
     return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
                dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER),
@@ -84,20 +88,29 @@ def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1) -> OCP:
                path_constraint=path, h_lower=np.zeros(half_spaces), h_upper=np.full(half_spaces, np.inf))
 
 
-def _half_space(n: ca.SX, b: ca.SX, x: ca.SX, uc: ca.SX, R: ca.SX, config: MPCConfig) -> ca.SX:
+def _half_space(n: ca.SX, b: ca.SX, x: ca.SX, uc: ca.SX, R: ca.SX, config: MPCConfig,
+                a_ext: ca.SX | None = None) -> ca.SX:
     """n^T p - b minus the distance needed to stop along -n (the module docstring's constraint,
-    without the slack): >= 0 keeps the drone, and its stopping point, in the half-space."""
+    without the slack): >= 0 keeps the drone, and its stopping point, in the half-space. With a
+    disturbance acceleration ``a_ext`` (world), the part pushing towards the half-space's boundary
+    is taken off the braking deceleration (down to BRAKE_FLOOR of it: the observer is bounded,
+    and the drone can always tilt further) and added to the acceleration of the reaction time."""
     v_n = ca.dot(n, R @ x[3:6])          # velocity along the outward direction
     approach = ca.fmax(0.0, -v_n)
-    stop = approach ** 2 / (2.0 * config.clearance_brake)
+    brake = config.clearance_brake
+    if a_ext is not None:
+        brake = brake - ca.fmin(ca.fmax(0.0, -ca.dot(n, a_ext)), (1.0 - BRAKE_FLOOR) * brake)
+    stop = approach ** 2 / (2.0 * brake)
     t_r = config.clearance_reaction
     if t_r > 0.0:
         # for t_r the drone keeps its present acceleration (thrust along body z, gravity) - a
         # drone tilted towards the structure gains speed while it turns round - then brakes
         a_n = ca.dot(n, R[:, 2]) * uc[3] / config.params.mass - GRAVITY * n[2]
+        if a_ext is not None:
+            a_n = a_n + ca.dot(n, a_ext)
         reach = ca.fmax(0.0, -(v_n * t_r + 0.5 * a_n * t_r ** 2))
         speed = ca.fmax(0.0, -(v_n + a_n * t_r))
-        stop = reach + speed ** 2 / (2.0 * config.clearance_brake)
+        stop = reach + speed ** 2 / (2.0 * brake)
     return ca.dot(n, x[0:3]) - b - stop
 
 
