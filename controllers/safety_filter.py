@@ -25,16 +25,35 @@ thrust along its body axis plus gravity) and only then brakes. Which half-space 
 differs from the MPCs', whose drone flies at the stand-off: the nearest surface is not always the
 one a policy flies at. A policy flying along a nacelle towards the tower sees the nacelle nearest
 until the tower is inside its stopping distance (a campaign flight reached 12 m/s along the
-nacelle and hit the tower). So each looked-up stage has three candidates - the supporting
-half-space at the stage's position, the one at a *look-ahead point* towards its stopping point
-(along the velocity, by the distance the constraint says it needs to stop - reaction plus braking
-- but at most ``LOOKAHEAD_FRACTION`` of the stage's clearance: one sphere-tracing step, so the
-point is certainly outside the structure), and the ground's (z >= d_min) - and keeps the one that
-leaves the least margin for that stage's state. Each is a supporting half-space of the nearest
-convex part of the mesh to a point outside it (or the ground), so any of them keeps the position
-d_min from that part; choosing the tightest sees the surface ahead in time. (Taking the stopping
-point itself would be wrong where it lies inside the structure: its closest point's half-space
-faces the wrong way.)
+nacelle and hit the tower). So each looked-up stage keeps *two* half-spaces (the OCP's clearance
+constraint with ``half_spaces=2``, both relaxed by the one slack):
+
+1. the tightest of three candidates - the supporting half-space at the stage's position, the one
+   at a *look-ahead point* towards its stopping point (along the velocity, by the distance the
+   constraint says it needs to stop - reaction plus braking - but at most ``LOOKAHEAD_FRACTION`` of
+   the stage's clearance: one sphere-tracing step, so the point is certainly outside the
+   structure), and the ground's (z >= d_min) - the one that leaves the least margin for that
+   stage's state. Each is a supporting half-space of the nearest convex part of the mesh to a
+   point outside it (or the ground), so any of them keeps the position d_min from that part.
+   (Taking the stopping point itself would be wrong where it lies inside the structure: its
+   closest point's half-space faces the wrong way.)
+2. a *free-ray bound* along the stage's direction of flight: the balls around the position (radius
+   d_0, its clearance) and around the look-ahead point (d_1) hold no structure, and both lie on
+   the ray ahead, so the ray is free for at least L = max(d_0, step + d_1); the drone must be able
+   to stop within L - d_min along it. The first half-space only sees the surface nearest to one
+   point; a drone flying fast along one surface towards another (the nacelle towards the tower, a
+   blade root towards the hub) is held by this bound until the second surface is the nearest.
+   It is inactive at rest (no direction) and once the stage is inside d_min (the ball gives no
+   room; the first half-space pushes out). Replacing the first half-space by it instead (tried)
+   lets wind drift a slow drone into the nearest surface.
+
+Wind. Near a turbine the wind pushes the drone into the structure, and a model without it brakes
+too late. The filter runs the disturbance observer of the MPC base (``disturbance_observer``, on by
+default here: :meth:`~controllers.rti_policy.RTIPolicy.on_measurement`), feeds its world-frame
+estimate a_ext to its model, and its clearance constraint takes the part of a_ext that pushes
+towards each half-space's boundary off the braking deceleration (down to a quarter of
+``clearance_brake``) and adds it to the acceleration of the reaction time
+(:func:`controllers.rti_policy.clearance_ocp` with ``disturbance``).
 
 Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
 see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
@@ -76,7 +95,8 @@ from .rti import OCP, RTISolver, SolveStats
 from .rti.rollout import Rollout
 from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
 
-N_PARAMS = NU + 1   # the policy's command [p, q, r, T] and the stage-0 flag
+N_PARAMS = NU + 4   # the policy's command [p, q, r, T], the stage-0 flag, the disturbance a_ext (3)
+A_EXT = slice(NU + 1, NU + 4)
 #: a filtered action that differs from the policy's by more than this (normalised, any component)
 #: counts as an intervention
 INTERVENTION_TOL = 1e-3
@@ -90,6 +110,10 @@ BRAKE_ATTITUDE_GAIN = 6.0
 BRAKE_FACTOR = 2.0
 #: the look-ahead point of a stage lies at most this fraction of the stage's clearance ahead
 LOOKAHEAD_FRACTION = 0.9
+#: below this speed [m/s] a stage has no direction of flight, so no free-ray bound; an inactive
+#: bound is the half-space z >= -INACTIVE [m]
+IDLE_SPEED = 1e-3
+INACTIVE = 1e3
 
 
 @dataclass(frozen=True)
@@ -125,6 +149,9 @@ class SafetyFilterConfig(MPCConfig):
     # every stage with this margin [m] to spare (see the module docstring)
     pass_through: bool = True
     pass_through_margin: float = 0.05
+    # the wind a drone meets near a turbine pushes it into the structure: the filter's model and
+    # its stopping distances take the observer's estimate into account (module docstring)
+    disturbance_observer: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -158,8 +185,9 @@ def brake_command(state: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
 
 
 def build_ocp(config: SafetyFilterConfig) -> OCP:
-    """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first]
-    with ``first`` 1 at stage 0 and 0 after."""
+    """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first,
+    a_ext (3)] with ``first`` 1 at stage 0 and 0 after and a_ext the observer's disturbance
+    acceleration (world frame)."""
     x = ca.SX.sym("x", NX)
     u = ca.SX.sym("u", NU)
     p = ca.SX.sym("p", N_PARAMS)
@@ -170,7 +198,8 @@ def build_ocp(config: SafetyFilterConfig) -> OCP:
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function("safety_filter_rN", [x, p], [quat_to_rotmat(x[6:10]) @ x[3:6]], ["x", "p"], ["rN"])
     model = QuadrotorModel(config.params)
-    dynamics = ca.Function("safety_filter_F", [x, u, p], [model.rk4_expr(x, u, config.dt, steps=config.rk4_steps)],
+    dynamics = ca.Function("safety_filter_F", [x, u, p],
+                           [model.rk4_expr(x, u, config.dt, a_ext=p[A_EXT], steps=config.rk4_steps)],
                            ["x", "u", "p"], ["x_next"])
     return config_ocp("safety_filter", config, dynamics, stage, terminal)
 
@@ -180,6 +209,8 @@ class FilterMPC(RTIPolicy):
     command and an observation and returns the filtered one."""
 
     config_class = SafetyFilterConfig
+    clearance_half_spaces = 2
+    clearance_disturbance = A_EXT
 
     def __init__(self, config: SafetyFilterConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
         if obstacles is None:
@@ -203,52 +234,55 @@ class FilterMPC(RTIPolicy):
         return build_ocp(config)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray, normal_xy: np.ndarray) -> np.ndarray:
-        """The parameters of the present filter step (the command it keeps close to, set per step)."""
+        """The parameters of the present filter step (the command it keeps close to, set per
+        step, and the observer's disturbance estimate)."""
+        self._params[:, A_EXT] = self._a_hat
         return self._params
 
-    def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """The solver's parameters with each stage's half-space (see the module docstring):
-        of the supporting half-spaces at the plan's position and at its stopping point, and the
-        ground's (z >= 0), the one that leaves the least margin."""
-        solver = self.solver
-        if not isinstance(solver, RTISolver) or not solver.initialized:
-            return super()._with_clearance(params, x0)
-        P = self._stage_params
-        npar, cfg = self.base_ocp.np, self.config
-        P[:, :npar] = params
-        plan = solver.state_view[self._query_stages]          # (a copy: fancy indexing)
-        plan[self._query_stages == 0] = x0[:plan.shape[1]]
+    def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """Two half-spaces per looked-up stage (see the module docstring): the tightest of the
+        supporting half-spaces at the stage's position, at its look-ahead point and the ground's;
+        and the free-ray bound along the stage's velocity."""
+        cfg = self.config
+        keep = cfg.d_min + cfg.clearance_backoff
         pos = plan[:, 0:3]
         vel = np.einsum("qij,qj->qi", quat_to_rotmat_np(plan[:, 6:10]), plan[:, 3:6])
-        last = self._lookup
-        if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
-                or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
-            speed = np.linalg.norm(vel, axis=1)
-            reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
-            q = len(pos)
-            c0, d0, n0 = self.obstacles.closest(pos)
-            # one sphere-tracing step towards the stopping point: within LOOKAHEAD_FRACTION of the
-            # free ball around the position, so the point is outside the structure and its
-            # closest point gives a supporting half-space
-            step = np.minimum(reach, LOOKAHEAD_FRACTION * d0) / np.maximum(speed, 1e-9)
-            c1, d1, n1 = self.obstacles.closest(pos + vel * step[:, None])
-            self.last_clearance = float(d0[0]) if self._query_stages[0] == 0 else float("nan")
-            # candidates per query stage: [at the position, at the look-ahead point, the ground]
-            cn = np.stack([n0, n1, np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
-            off = np.stack([np.einsum("ij,ij->i", n0, c0), np.einsum("ij,ij->i", n1, c1),
-                            np.zeros(q)], axis=1) + (cfg.d_min + cfg.clearance_backoff)
-            v_n = np.einsum("qij,qj->qi", cn, vel)
-            approach = np.maximum(0.0, -v_n)
-            margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
-                      - approach ** 2 / (2.0 * cfg.clearance_brake))
-            pick = margin.argmin(axis=1)
-            rows = np.arange(q)
-            k = self._stage_query
-            self._lookup = last = (pos, c0, n0, self.obstacles.index, float(min(d0.min(), d1.min(), pos[:, 2].min())),
-                                   cn[rows, pick][k], off[rows, pick][k])
-        P[:, npar:npar + 3] = last[5]
-        P[:, npar + 3] = last[6]
-        return P
+        speed = np.linalg.norm(vel, axis=1)
+        reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
+        q = len(pos)
+        c0, d0, n0 = self.obstacles.closest(pos)
+        # one sphere-tracing step towards the stopping point: within LOOKAHEAD_FRACTION of the
+        # free ball around the position, so the point is outside the structure and its closest
+        # point gives a supporting half-space
+        ahead = vel / np.maximum(speed, 1e-9)[:, None]
+        step = np.minimum(reach, LOOKAHEAD_FRACTION * d0)
+        c1, d1, n1 = self.obstacles.closest(pos + ahead * step[:, None])
+        self.last_clearance = float(d0[0]) if self._query_stages[0] == 0 else float("nan")
+        # first: of [at the position, at the look-ahead point, the ground] the least margin
+        cn = np.stack([n0, n1, np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
+        off = np.stack([np.einsum("ij,ij->i", n0, c0), np.einsum("ij,ij->i", n1, c1), np.zeros(q)], axis=1) + keep
+        v_n = np.einsum("qij,qj->qi", cn, vel)
+        approach = np.maximum(0.0, -v_n)
+        margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
+                  - approach ** 2 / (2.0 * cfg.clearance_brake))
+        rows = np.arange(q)
+        pick = margin.argmin(axis=1)
+        normals = np.empty((q, 2, 3))
+        offsets = np.empty((q, 2))
+        normals[:, 0], offsets[:, 0] = cn[rows, pick], off[rows, pick]
+        # second: the free ray ahead. The balls around the position (radius d0) and the
+        # look-ahead point (d1, on the ray) hold no structure, so the ray is free for at least
+        # L = max(d0, step + d1); the drone must stop within L - d_min along it:
+        # ahead^T (p - pos) + stop <= L - keep, i.e. n = -ahead, b = -ahead^T pos - L + keep.
+        free = np.maximum(d0, step + d1)
+        normals[:, 1] = -ahead
+        offsets[:, 1] = -np.einsum("ij,ij->i", ahead, pos) - free + keep
+        # no direction at rest, and no room to bound once inside d_min (the first half-space
+        # pushes out): an inactive bound (z >= -INACTIVE)
+        idle = (speed < IDLE_SPEED) | (d0 <= keep)
+        normals[idle, 1] = (0.0, 0.0, 1.0)
+        offsets[idle, 1] = -INACTIVE
+        return normals, offsets, float(min(d0.min(), d1.min(), pos[:, 2].min()))
 
     def _solve(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
         """One filter step: the policy's command when the candidate passes the rollout check

@@ -140,25 +140,12 @@ class VTNMPCConfig(MPCConfig):
 
     weights: VTNMPCWeights | str = "paper"
     norm_eps: float = 1e-6
-    disturbance_observer: bool = False
-    observer_time_constant: float = 0.3
-    observer_max_accel: float = 0.8 * GRAVITY
     heading_model: str = "body"
     heading_residual: str = "paper"
 
     def __post_init__(self) -> None:
         super().__post_init__()
         check_positive("norm_eps", self.norm_eps)
-        if not isinstance(self.disturbance_observer, bool):
-            raise ValueError(f"disturbance_observer must be a bool, got {self.disturbance_observer!r}")
-        if self.disturbance_observer and self.control_dt < self.dt:
-            raise ValueError(f"disturbance_observer needs control_dt >= dt (it compares the measurement "
-                             f"with the plan's next stage), got control_dt={self.control_dt!r}, dt={self.dt!r}")
-        check_positive("observer_time_constant", self.observer_time_constant)
-        check_positive("observer_max_accel", self.observer_max_accel)
-        if self.observer_max_accel >= GRAVITY:
-            raise ValueError(f"observer_max_accel must be below g = {GRAVITY} m/s^2 (the tilted hover "
-                             f"attitude needs thrust with an upward part), got {self.observer_max_accel!r}")
         check_choice("heading_model", self.heading_model, HEADING_MODELS)
         check_choice("heading_residual", self.heading_residual, HEADING_RESIDUALS)
 
@@ -257,44 +244,11 @@ class VTNMPCPolicy(RTIPolicy):
 
     config_class = VTNMPCConfig
 
-    def __init__(self, config: VTNMPCConfig | None = None, **overrides: Any) -> None:
-        super().__init__(config, **overrides)
-        self._a_hat = np.zeros(3)
-
     def build_ocp(self, config: VTNMPCConfig) -> OCP:
         """The VT-NMPC's OCP."""
         return build_ocp(config)
-
-    def reset(self, seed: int | None = None) -> None:
-        """Reset the solver and the disturbance estimate for a new episode."""
-        super().reset(seed)
-        self._a_hat = np.zeros(3)
 
     def parameters(self, obs: Mapping[str, np.ndarray], state: np.ndarray,
                    normal_xy: np.ndarray) -> np.ndarray:
         """Online parameters (see :func:`vtnmpc_parameters`), with the observer's estimate."""
         return vtnmpc_parameters(state, obs["point"], normal_xy, obs["point_velocity"], self._a_hat)
-
-    @property
-    def disturbance_estimate(self) -> np.ndarray:
-        """The observer's world-frame disturbance acceleration (zero when it is off)."""
-        return self._a_hat.copy()
-
-    def on_measurement(self, state: np.ndarray) -> None:
-        """The disturbance observer: a_hat += (v_measured - v_predicted) / (tau + dt), world frame.
-
-        The prediction is the plan's state for this step (model with the current a_hat), so the
-        velocity gap is the unmodelled acceleration; the estimate is bounded by
-        ``observer_max_accel`` (0.8 g by default: the 7 m/s gust peaks need ~0.7 g on the
-        Matrice-100-like drone)."""
-        if not self.config.disturbance_observer:
-            return
-        predicted = self.predicted_state
-        if predicted is None:
-            return
-        dt, tau = self.config.control_dt, self.config.observer_time_constant
-        self._a_hat += (self.world_velocity(state) - self.world_velocity(predicted)) / (tau + dt)
-        norm = float(np.linalg.norm(self._a_hat))
-        cap = self.config.observer_max_accel
-        if norm > cap:
-            self._a_hat *= cap / norm

@@ -201,3 +201,102 @@ def test_a_stage_keeps_clear_of_the_surface_it_flies_at(speed, facing):
     np.testing.assert_allclose(P[0, npar:npar + 3], facing, atol=1e-9)
     plane = 0.0 if facing[0] else -6.0                                     # n.c of the wall
     assert P[0, npar + 3] == pytest.approx(plane + cfg.d_min + cfg.clearance_backoff)
+
+
+@pytest.mark.parametrize("speed", [0.0, 3.0, 10.0])
+def test_a_stage_flying_along_a_wall_must_stop_within_the_free_ray_ahead(speed):
+    """Wall A (x = 0) 3.6 m to the side, wall B (y = 12) ahead. Flying along A, A stays the nearest
+    surface at the position and at the look-ahead point (0.9 x 3.6 m ahead), so the first
+    half-space is A's whatever the speed; the second bounds the stop along the ray ahead by the
+    free length L = step + d1 the two balls prove (step: the stopping distance, at most 0.9 x 3.6 m;
+    inactive at rest). At 3 m/s the
+    drone stops within it (the policy's hover passes); at 10 m/s it cannot, and the filter brakes."""
+    from controllers.safety_filter import INACTIVE, FilterMPC
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = np.concatenate([_wall(0, -50, 0, 12, (1, 0, 0)), _wall(0, 12, 50, 12, (0, -1, 0))])
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]))
+    cfg = mpc.config
+    keep = cfg.d_min + cfg.clearance_backoff
+    x0 = np.array([3.6, 0.0, 50.0, 0.0, speed, 0.0, 0.0, 0.0, 0.0, 1.0])    # level, flying +y
+    # the plan: flying on at the speed (hover thrust, no slack)
+    plan = np.tile(x0, (cfg.horizon + 1, 1))
+    plan[:, 1] = speed * cfg.dt * np.arange(cfg.horizon + 1)
+    mpc.solver.initialize(x0, inputs=np.tile(mpc.ocp.fallback_input, (cfg.horizon, 1)), states=plan)
+    P = mpc._with_clearance(np.zeros((cfg.horizon + 1, mpc.base_ocp.np)), x0)
+    npar = mpc.base_ocp.np
+    np.testing.assert_allclose(P[0, npar:npar + 3], (1.0, 0.0, 0.0), atol=1e-9)
+    assert P[0, npar + 3] == pytest.approx(keep)
+    if speed == 0.0:
+        np.testing.assert_allclose(P[0, npar + 4:npar + 7], (0.0, 0.0, 1.0))
+        assert P[0, npar + 7] == -INACTIVE
+        return
+    np.testing.assert_allclose(P[0, npar + 4:npar + 7], (0.0, -1.0, 0.0), atol=1e-9)
+    reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
+    assert P[0, npar + 7] == pytest.approx(-(min(reach, 0.9 * 3.6) + 3.6) + keep, abs=1e-6)
+    obs = {"position": x0[0:3], "velocity_body": x0[3:6], "quaternion": x0[6:10], "body_rates": np.zeros(3),
+           "point": np.array([0.0, 0.0, 50.0]), "normal": np.array([1.0, 0.0, 0.0]),
+           "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+    hover = mpc.config.hover_input
+    u = mpc.filter_command(hover, obs)
+    if speed == 3.0:
+        assert mpc.last_stats.status == "PASSED_THROUGH"
+        np.testing.assert_allclose(u, hover, atol=1e-9)
+    else:
+        assert mpc.last_stats.status != "PASSED_THROUGH"
+        # braking along -y: tilt back (body x rate about -x for a level drone flying +y)
+        assert abs(u[0]) > 0.1 or u[3] > hover[3] + 0.1
+
+
+@pytest.mark.parametrize("push", [0.0, 2.0, 5.0])
+def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(push):
+    """The filter's clearance constraint with the observer's disturbance a_ext: approaching a wall
+    at 4 m/s, a push of ``push`` m/s^2 towards it leaves clearance_brake - push to brake with (at
+    least BRAKE_FLOOR of it), so h falls by exactly the longer stop v^2 / 2 (a - push) - v^2 / 2a;
+    a push away from the wall changes nothing."""
+    from controllers.rti_policy.clearance import BRAKE_FLOOR
+    from controllers.safety_filter import A_EXT, FilterMPC
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = _wall(0, -50, 0, 50, (1, 0, 0))
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), clearance_reaction=0.0)
+    cfg = mpc.config
+    x = np.array([5.0, 0.0, 50.0, -4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])      # level, 4 m/s at the wall
+    u = np.append(cfg.hover_input, 0.0)
+    p = np.zeros(mpc.ocp.np)
+    p[mpc.base_ocp.np:mpc.base_ocp.np + 4] = (1.0, 0.0, 0.0, 3.1)          # the wall's half-space
+    p[mpc.base_ocp.np + 4:mpc.base_ocp.np + 8] = (0.0, 0.0, 1.0, -1e3)     # an inactive second one
+
+    def h(a_ext):
+        p[A_EXT] = a_ext
+        return float(np.asarray(mpc.ocp.path_constraint(x, u, p)).ravel()[0])
+
+    a = cfg.clearance_brake
+    calm = h((0.0, 0.0, 0.0))
+    assert calm == pytest.approx(5.0 - 3.1 - 16.0 / (2 * a), abs=1e-9)
+    left = max(a - push, BRAKE_FLOOR * a)
+    assert h((-push, 0.0, 0.0)) == pytest.approx(calm - 16.0 / (2 * left) + 16.0 / (2 * a), abs=1e-9)
+    assert h((push, 0.0, 0.0)) == pytest.approx(calm, abs=1e-9)
+
+
+def test_the_filter_estimates_a_steady_push():
+    """The observer inside the filter: a model plant with a steady 2 m/s^2 push along +x, the
+    policy hovering far from any structure; after 3 s the estimate is the push within 5 %."""
+    import casadi as ca
+
+    from controllers.safety_filter import FilterMPC
+    from wt_inspect_env.physics.dynamics import QuadrotorModel
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = _wall(-100, -50, -100, 50, (1, 0, 0))
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), control_dt=0.01)
+    cfg = mpc.config
+    model = QuadrotorModel(cfg.params)
+    xs, us, ae = ca.SX.sym("x", 10), ca.SX.sym("u", 4), ca.SX.sym("a", 3)
+    plant = ca.Function("plant", [xs, us, ae], [model.rk4_expr(xs, us, 0.01, a_ext=ae, steps=1)])
+    x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+    push = np.array([2.0, 0.0, 0.0])
+    for _ in range(300):
+        obs = {"position": x[0:3], "velocity_body": x[3:6], "quaternion": x[6:10], "body_rates": np.zeros(3),
+               "point": np.array([-93.0, 0.0, 50.0]), "normal": np.array([1.0, 0.0, 0.0]),
+               "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+        u = mpc.filter_command(cfg.hover_input, obs)
+        x = np.asarray(plant(x, u, push)).ravel()
+    np.testing.assert_allclose(mpc.disturbance_estimate, push, atol=0.1)

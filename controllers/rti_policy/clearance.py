@@ -42,24 +42,32 @@ from .config import MPCConfig
 
 N_CLEARANCE_PARAMS = 4        # per stage: outward direction n (3), b = n^T c + d_min
 SLACK_UPPER = 1e3             # [m] finite upper bound of the clearance slack (HPIPM bounds every input)
+BRAKE_FLOOR = 0.25            # a disturbance leaves at least this share of clearance_brake to brake with
 
 
-def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
+def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1, disturbance: slice | None = None) -> OCP:
     """``ocp`` with the soft clearance constraint of the module docstring: one slack input
     appended (within +-SLACK_UPPER, or [0, SLACK_UPPER] with an L1 price; fallback 0), its residual
     ``s + l1 / l2`` appended to the stage residual (weight ``l2``: cost l2 s^2 / 2 + l1 s + const;
     l1, l2 = :attr:`MPCConfig.clearance_prices`),
-    and the path constraint
-    on stage parameters appended to the OCP's own [n (3), b]. The first 10 states must be the drone's
-    [p, v_B, q] (augmented states keep them first)."""
+    and ``half_spaces`` path constraints (each a half-space with its stopping distance, all relaxed
+    by the one slack) on stage parameters appended to the OCP's own: [n_j (3), b_j] per half-space.
+    The MPCs keep one (the nearest surface); the safety filter adds a second (see
+    :mod:`controllers.safety_filter`). ``disturbance``: where the OCP's own parameters hold a
+    world-frame disturbance acceleration (an observer's estimate) that the stopping distance then
+    accounts for (:func:`_half_space`); None: none (the MPCs). The first 10 states must be the
+    drone's [p, v_B, q] (augmented states keep them first)."""
     if ocp.nh:
         raise ValueError(f"the clearance constraint cannot be added to OCP {ocp.name!r}: it already has "
                          f"{ocp.nh} path constraints")
+    if isinstance(half_spaces, bool) or not isinstance(half_spaces, int) or half_spaces < 1:
+        raise ValueError(f"half_spaces must be an int >= 1, got {half_spaces!r}")
     nx, nu, npar = ocp.nx, ocp.nu, ocp.np
-    x, u, p = ca.SX.sym("x", nx), ca.SX.sym("u", nu + 1), ca.SX.sym("p", npar + N_CLEARANCE_PARAMS)
+    x = ca.SX.sym("x", nx)
+    u = ca.SX.sym("u", nu + 1)
+    p = ca.SX.sym("p", npar + N_CLEARANCE_PARAMS * half_spaces)
     uc, slack, pc = u[:nu], u[nu], p[:npar]
-    n, b = p[npar:npar + 3], p[npar + 3]
-    name = f"{ocp.name}_clr"
+    name = f"{ocp.name}_clr" if half_spaces == 1 else f"{ocp.name}_clr{half_spaces}"
     dyn = ca.Function(f"{name}_F", [x, u, p], [ocp.dynamics(x, uc, pc)], ["x", "u", "p"], ["x_next"])
     l1, l2 = config.clearance_prices
     offset = l1 / l2
@@ -67,24 +75,43 @@ def clearance_ocp(ocp: OCP, config: MPCConfig) -> OCP:
                         ["x", "u", "p"], ["r"])
     terminal = ca.Function(f"{name}_rN", [x, p], [ocp.terminal_residual(x, pc)], ["x", "p"], ["rN"])
     R = quat_to_rotmat(x[6:10])
+    a_ext = None if disturbance is None else pc[disturbance]
+    rows = []
+    for j in range(half_spaces):
+        o = npar + N_CLEARANCE_PARAMS * j
+        rows.append(_half_space(p[o:o + 3], p[o + 3], x, uc, R, config, a_ext) + slack)
+    path = ca.Function(f"{name}_h", [x, u, p], [ca.vertcat(*rows)], ["x", "u", "p"], ["h"])
+    return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
+               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER),
+               u_upper=np.append(ocp.u_upper, SLACK_UPPER),
+               fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
+               path_constraint=path, h_lower=np.zeros(half_spaces), h_upper=np.full(half_spaces, np.inf))
+
+
+def _half_space(n: ca.SX, b: ca.SX, x: ca.SX, uc: ca.SX, R: ca.SX, config: MPCConfig,
+                a_ext: ca.SX | None = None) -> ca.SX:
+    """n^T p - b minus the distance needed to stop along -n (the module docstring's constraint,
+    without the slack): >= 0 keeps the drone, and its stopping point, in the half-space. With a
+    disturbance acceleration ``a_ext`` (world), the part pushing towards the half-space's boundary
+    is taken off the braking deceleration (down to BRAKE_FLOOR of it: the observer is bounded,
+    and the drone can always tilt further) and added to the acceleration of the reaction time."""
     v_n = ca.dot(n, R @ x[3:6])          # velocity along the outward direction
     approach = ca.fmax(0.0, -v_n)
-    stop = approach ** 2 / (2.0 * config.clearance_brake)
+    brake = config.clearance_brake
+    if a_ext is not None:
+        brake = brake - ca.fmin(ca.fmax(0.0, -ca.dot(n, a_ext)), (1.0 - BRAKE_FLOOR) * brake)
+    stop = approach ** 2 / (2.0 * brake)
     t_r = config.clearance_reaction
     if t_r > 0.0:
         # for t_r the drone keeps its present acceleration (thrust along body z, gravity) - a
         # drone tilted towards the structure gains speed while it turns round - then brakes
         a_n = ca.dot(n, R[:, 2]) * uc[3] / config.params.mass - GRAVITY * n[2]
+        if a_ext is not None:
+            a_n = a_n + ca.dot(n, a_ext)
         reach = ca.fmax(0.0, -(v_n * t_r + 0.5 * a_n * t_r ** 2))
         speed = ca.fmax(0.0, -(v_n + a_n * t_r))
-        stop = reach + speed ** 2 / (2.0 * config.clearance_brake)
-    h = ca.dot(n, x[0:3]) - b - stop + slack
-    path = ca.Function(f"{name}_h", [x, u, p], [h], ["x", "u", "p"], ["h"])
-    return OCP(name=name, dynamics=dyn, stage_residual=stage, terminal_residual=terminal, horizon=ocp.horizon,
-               dt=ocp.dt, u_lower=np.append(ocp.u_lower, 0.0 if l1 > 0 else -SLACK_UPPER),
-               u_upper=np.append(ocp.u_upper, SLACK_UPPER),
-               fallback_input=np.append(ocp.fallback_input, 0.0), x_lower=ocp.x_lower, x_upper=ocp.x_upper,
-               path_constraint=path, h_lower=np.zeros(1), h_upper=np.full(1, np.inf))
+        stop = reach + speed ** 2 / (2.0 * brake)
+    return ca.dot(n, x[0:3]) - b - stop
 
 
 def check_obstacles(obstacles: Any) -> TurbineProximity | None:

@@ -7,7 +7,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from wt_inspect_env.physics.quadrotor import QuadrotorParams, get_preset
+from wt_inspect_env.physics.quadrotor import GRAVITY, QuadrotorParams, get_preset
 from wt_inspect_env.planner.config import CLEARANCE_BRAKE
 from wt_inspect_env.task.env_config import D_MIN_RATIO
 from wt_inspect_env.task.spaces import ActionScaling
@@ -85,7 +85,11 @@ class MPCConfig:
     reference). ``prepare_ahead``: see the module docstring. ``scale_weights`` (default on): the
     weights are the reference conditions' and the solver gets them scaled for ``d_ref`` and
     ``params`` (:meth:`solver_weights`, the module docstring's weight scaling), the clearance prices
-    likewise (:attr:`clearance_prices`); off, both apply as given."""
+    likewise (:attr:`clearance_prices`); off, both apply as given. ``disturbance_observer`` (off by
+    default) estimates a world-frame disturbance acceleration from the gap between measured and
+    predicted velocity (first-order filter, ``observer_time_constant`` [s], bounded by
+    ``observer_max_accel`` [m/s^2], below g) for a subclass's model (VT-NMPC, the safety filter:
+    :meth:`RTIPolicy.on_measurement`)."""
 
     WEIGHTS: ClassVar[type] = LSQWeights
     WEIGHT_SETS: ClassVar[Mapping[str, Any]] = {}
@@ -111,6 +115,9 @@ class MPCConfig:
     clearance_refresh: float | None = None
     clearance_backoff: float | None = None
     scale_weights: bool = True
+    disturbance_observer: bool = False
+    observer_time_constant: float = 0.3
+    observer_max_accel: float = 0.8 * GRAVITY
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -164,6 +171,16 @@ class MPCConfig:
         if self.d_min + self.clearance_backoff >= self.d_ref:
             raise ValueError(f"d_min + clearance_backoff must be below d_ref ({self.d_ref!r} m), got "
                              f"{self.d_min!r} + {self.clearance_backoff!r}")
+        if not isinstance(self.disturbance_observer, bool):
+            raise ValueError(f"disturbance_observer must be a bool, got {self.disturbance_observer!r}")
+        if self.disturbance_observer and self.control_dt < self.dt:
+            raise ValueError(f"disturbance_observer needs control_dt >= dt (it compares the measurement "
+                             f"with the plan's next stage), got control_dt={self.control_dt!r}, dt={self.dt!r}")
+        check_positive("observer_time_constant", self.observer_time_constant)
+        check_positive("observer_max_accel", self.observer_max_accel)
+        if self.observer_max_accel >= GRAVITY:
+            raise ValueError(f"observer_max_accel must be below g = {GRAVITY} m/s^2 (the tilted hover "
+                             f"attitude needs thrust with an upward part), got {self.observer_max_accel!r}")
 
     @classmethod
     def _default_weights(cls) -> Any:

@@ -40,6 +40,11 @@ class RTIPolicy(Policy):
     """
 
     config_class: ClassVar[type] = MPCConfig
+    #: half-spaces each stage keeps (:meth:`_half_spaces`); the MPCs keep the nearest surface's
+    clearance_half_spaces: ClassVar[int] = 1
+    #: where the OCP's parameters hold the disturbance estimate the clearance constraint accounts
+    #: for (None: it does not; the MPCs)
+    clearance_disturbance: ClassVar[slice | None] = None
 
     def __init__(self, config: MPCConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
         config = resolve_config(self.config_class, config, overrides)
@@ -47,7 +52,8 @@ class RTIPolicy(Policy):
         self.obstacles = check_obstacles(obstacles)
         self.base_ocp = self.build_ocp(config)
         self.clearance_active = bool(config.clearance and self.obstacles is not None)
-        self.ocp = clearance_ocp(self.base_ocp, config) if self.clearance_active else self.base_ocp
+        self.ocp = (clearance_ocp(self.base_ocp, config, self.clearance_half_spaces, self.clearance_disturbance)
+                    if self.clearance_active else self.base_ocp)
         self._nu = self.base_ocp.nu
         if self.clearance_active:
             N = config.horizon
@@ -55,9 +61,9 @@ class RTIPolicy(Policy):
             self._query_stages = np.unique(np.round(np.linspace(0, N, q)).astype(int))
             # each stage takes the half-space of the nearest looked-up stage
             self._stage_query = np.abs(np.arange(N + 1)[:, None] - self._query_stages[None, :]).argmin(axis=1)
-            self._stage_params = np.zeros((N + 1, self.base_ocp.np + N_CLEARANCE_PARAMS))
+            self._stage_params = np.zeros((N + 1, self.base_ocp.np + N_CLEARANCE_PARAMS * self.clearance_half_spaces))
         self.last_clearance = float("nan")
-        # (positions, c, n, rotor position, min distance, stage normals, stage offsets) of the last look-up
+        # (positions, rotor position, least distance, stage normals, stage offsets) of the last look-up
         self._lookup: tuple[Any, ...] | None = None
         self.solver: RTISolver | IpoptOCPSolver = self._make_solver(config.weights)
         self.scaling: ActionScaling = config.scaling
@@ -71,6 +77,7 @@ class RTIPolicy(Policy):
         self._last_solve: tuple[np.ndarray, np.ndarray] | None = None   # (model state, params) of the last command
         self._prepared_params: np.ndarray | None = None
         self._prediction_offset: np.ndarray | None = None   # shadow mode: see note_applied_action
+        self._a_hat = np.zeros(3)         # the disturbance observer's estimate (see on_measurement)
 
     # -- what a subclass provides -----------------------------------------------------------------
     def build_ocp(self, config: Any) -> OCP:
@@ -87,8 +94,31 @@ class RTIPolicy(Policy):
         """The OCP's state for a drone state [p, v_B, q] (identity unless the OCP augments it)."""
         return state
 
+    @property
+    def disturbance_estimate(self) -> np.ndarray:
+        """The observer's world-frame disturbance acceleration (zero when it is off)."""
+        return self._a_hat.copy()
+
     def on_measurement(self, state: np.ndarray) -> None:
-        """Called once per measured state, before its command is computed (estimators)."""
+        """Called once per measured state, before its command is computed (estimators). The
+        disturbance observer (``disturbance_observer``; a subclass feeds :attr:`_a_hat` to its
+        model): a_hat += (v_measured - v_predicted) / (tau + dt), world frame.
+
+        The prediction is the plan's state for this step (model with the current a_hat), so the
+        velocity gap is the unmodelled acceleration; the estimate is bounded by
+        ``observer_max_accel`` (0.8 g by default: the 7 m/s gust peaks need ~0.7 g on the
+        Matrice-100-like drone)."""
+        if not self.config.disturbance_observer:
+            return
+        predicted = self.predicted_state
+        if predicted is None:
+            return
+        dt, tau = self.config.control_dt, self.config.observer_time_constant
+        self._a_hat += (self.world_velocity(state) - self.world_velocity(predicted)) / (tau + dt)
+        norm = float(np.linalg.norm(self._a_hat))
+        cap = self.config.observer_max_accel
+        if norm > cap:
+            self._a_hat *= cap / norm
 
     # -- common -----------------------------------------------------------------------------------
     def _weight_vectors(self, weights: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -120,6 +150,7 @@ class RTIPolicy(Policy):
         self._last_solve = None
         self._prepared_params = None
         self._prediction_offset = None
+        self._a_hat = np.zeros(3)
 
     def set_weights(self, weights: Any) -> None:
         """Switch weights: a weight object of the config's class or a set name. The RTI solver
@@ -170,38 +201,51 @@ class RTIPolicy(Policy):
         return self.last_command
 
     def _with_clearance(self, params: np.ndarray, x0: np.ndarray) -> np.ndarray:
-        """The solver's parameters: ``params``, or with the clearance on the (N+1, np + 4)
-        stage-wise array of ``params`` and each stage's half-space [n, n^T c + d_min] from the
-        nearest mesh points of the plan's positions (stage 0: ``x0``'s)."""
+        """The solver's parameters: ``params``, or with the clearance on the (N+1, np + 4 H)
+        stage-wise array of ``params`` and each stage's H half-spaces [n, b] from
+        :meth:`_half_spaces` at the looked-up stages of the plan (stage 0: ``x0``), looked up
+        afresh when the rotor moved, the plan came near the structure or moved by more than
+        ``clearance_refresh``."""
         if not self.clearance_active:
             return params
         P = self._stage_params
         npar = self.base_ocp.np
         P[:, :npar] = params
         solver = self.solver
+        nq = len(self._query_stages)
         if isinstance(solver, RTISolver) and solver.initialized:
-            pos = solver.state_view[self._query_stages, 0:3]   # (a copy: fancy indexing)
-            pos[self._query_stages == 0] = x0[0:3]
+            plan = solver.state_view[self._query_stages]      # (a copy: fancy indexing)
         else:
             try:
-                xs = self.ocp.unpack(solver.iterate)[0]
-                pos = xs[self._query_stages, 0:3]
-                pos[self._query_stages == 0] = x0[0:3]
+                plan = self.ocp.unpack(solver.iterate)[0][self._query_stages]
             except RuntimeError:          # no plan yet (IPOPT before its first solve)
-                pos = np.tile(x0[0:3], (len(self._query_stages), 1))
+                plan = np.tile(x0[:NX], (nq, 1))
+        plan[self._query_stages == 0, :NX] = x0[:NX]
+        pos = plan[:, 0:3]
         last = self._lookup
         cfg = self.config
-        if (last is None or last[3] != self.obstacles.index or last[4] < 0.5 * (cfg.d_min + cfg.d_ref)
+        if (last is None or last[1] != self.obstacles.index or last[2] < 0.5 * (cfg.d_min + cfg.d_ref)
                 or float(np.abs(pos - last[0]).max()) > cfg.clearance_refresh):
-            c, d, n = self.obstacles.closest(pos)
-            self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+            normals, offsets, least = self._half_spaces(plan)
             k = self._stage_query
-            # each stage's half-space [n, n^T c + d_min + back-off], kept until the next look-up
-            self._lookup = last = (pos, c, n, self.obstacles.index, float(d.min()), n[k],
-                                   np.einsum("ij,ij->i", n, c)[k] + (cfg.d_min + cfg.clearance_backoff))
-        P[:, npar:npar + 3] = last[5]
-        P[:, npar + 3] = last[6]
+            # each stage's half-spaces, kept until the next look-up
+            self._lookup = last = (pos, self.obstacles.index, least, normals[k], offsets[k])
+        for j in range(self.clearance_half_spaces):
+            o = npar + N_CLEARANCE_PARAMS * j
+            P[:, o:o + 3] = last[3][:, j]
+            P[:, o + 3] = last[4][:, j]
         return P
+
+    def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+        """The half-spaces of the looked-up stages' states ``plan`` (q, nx): outward normals
+        (q, H, 3), offsets b = n^T c + d_min + back-off (q, H), and the least distance to the
+        structure seen (for the look-up's refresh rule); sets :attr:`last_clearance`. The MPCs
+        keep the supporting half-space of each stage's nearest mesh point."""
+        c, d, n = self.obstacles.closest(plan[:, 0:3])
+        self.last_clearance = float(d[0]) if self._query_stages[0] == 0 else float("nan")
+        cfg = self.config
+        offsets = np.einsum("ij,ij->i", n, c) + (cfg.d_min + cfg.clearance_backoff)
+        return n[:, None, :], offsets[:, None], float(d.min())
 
     @property
     def predicted_state(self) -> np.ndarray | None:
