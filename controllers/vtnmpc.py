@@ -32,7 +32,7 @@ model (zero unless the optional disturbance observer is on):
 Horizon N = 30 at 0.01 s, RK4 multiple shooting, |p|, |q|, |r| <= 100 deg/s and
 0.3 m g <= T <= 2 m g (the environment's action bounds, from :class:`ActionScaling`).
 
-Closed-loop behaviour measured with this implementation (tests/test_vtnmpc.py, bench harness):
+Closed-loop behaviour measured with this implementation (tests/controllers/test_vtnmpc.py, bench harness):
 
 * The 0.3 s horizon sees little of how attitude moves the drone, so position is weakly damped:
   on a drag-free plant the converged MPC (IPOPT or SQP alike, so not an RTI artefact) keeps a

@@ -1,5 +1,11 @@
 """Shared test set-up: Hypothesis profiles and the fixtures several test modules use.
 
+Layout: the folders mirror the packages (``env/<subpackage>``, ``controllers``, ``agents``, ``cli``
+for ``wt_inspect``, ``px4``) plus ``project`` (docs, lint, layout, examples). Markers:
+:func:`pytest_collection_modifyitems` marks every test ``unit`` or ``integration``: integration
+are the ``cli``, ``px4`` and ``project`` folders, every ``slow`` test (closed loops and training)
+and any test marked so by hand; the rest are unit. ``pytest -m unit`` is the quick loop.
+
 Fixtures: ``params`` (the Matrice-100-like preset every controller test flies). The controller
 tests' closed-loop harness (model plant, surface pass, loop) is the plain module
 ``tests/closed_loop.py``, imported by name.
@@ -40,6 +46,21 @@ def _profile() -> str:
 
 
 settings.load_profile(_profile())
+
+#: folders whose tests exercise several packages together
+INTEGRATION_FOLDERS = ("cli", "px4", "project")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """Mark each test ``unit`` or ``integration`` (module docstring)."""
+    root = os.path.dirname(os.path.abspath(__file__))
+    for item in items:
+        rel = os.path.relpath(str(item.path), root).split(os.sep)
+        if item.get_closest_marker("integration") is None and (
+                rel[0] in INTEGRATION_FOLDERS or item.get_closest_marker("slow") is not None):
+            item.add_marker(pytest.mark.integration)
+        if item.get_closest_marker("integration") is None:
+            item.add_marker(pytest.mark.unit)
 
 
 @pytest.fixture(scope="session")

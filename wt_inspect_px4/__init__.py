@@ -1,7 +1,7 @@
 """The MAVLink / PX4 bridge: fly any registered policy on a PX4 vehicle, and let PX4 SITL fly in our world.
 
 This package sits *above* the environment, the controllers, the agents and the evaluation harness
-(it imports them; nothing below imports it - ``tests/test_layout.py`` checks both directions), so
+(it imports them; nothing below imports it - ``tests/project/test_layout.py`` checks both directions), so
 the simulator and the policies stay free of any autopilot protocol.
 
 * :mod:`.frames` - PX4's NED / FRD frames <-> the project's z-up world and FLU body, and the site

@@ -385,7 +385,7 @@ class RTISolver:
 
         A fresh ``FunctionBuffer`` (cheap beside the solve) is made per solve: CasADi 3.8's HPIPM plugin returns
         the *first* solution again when one buffer is re-evaluated after its inputs changed
-        (tests/test_rti.py guards this against ``Function.call``).
+        (tests/controllers/test_rti.py guards this against ``Function.call``).
         """
         buf, evaluate = self._qp.buffer()
         for i, view in enumerate(self._qp_in_views):

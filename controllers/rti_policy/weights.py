@@ -19,7 +19,7 @@ for the instance's stand-off and drone: each block declares the unit of its resi
   manoeuvre over a stand-off L scaled by s at the same tilt angles then takes sqrt(s) the time, at
   sqrt(s) the speed and 1/sqrt(s) the body rates. With these sizes the converged answer of a
   geometrically scaled problem (stage length scaled by sqrt(s)) is exactly the scaled answer
-  (tests/test_weight_scaling.py), so the paper's damping and trade-offs carry over to any size;
+  (tests/controllers/test_weight_scaling.py), so the paper's damping and trade-offs carry over to any size;
 * thrust: the drone's hover thrust m g - thrust deviations matter relative to the weight held;
 * dimensionless residuals (attitude, heading, image coordinates): unchanged.
 

@@ -28,7 +28,7 @@ in a ~0.9 m long window of the drone's travel at exactly 7 m, barely at 6 m and 
 5.6 m the paper's NMPC baseline dipped to. A 24 mm lens (52 x 36 deg, footprint 6.9 x 4.6 m at 7 m)
 still fits it at 5 m and leaves > 0.5 m of room for centring errors at 7 m, while the ground
 sampling distance stays ~1.1 mm/px at 7 m on a 6000 x 4000 (24 MP) sensor - fine enough for the
-millimetre-scale cracks and erosion an inspection looks for. ``tests/test_camera_coverage.py``
+millimetre-scale cracks and erosion an inspection looks for. ``tests/env/scene/test_camera_coverage.py``
 sweeps such a blade strip past the camera to check this claim, and that the 35 mm lens fails it.
 """
 from __future__ import annotations

@@ -192,7 +192,7 @@ def _num_arg(v: float) -> str:
 def refly_command(cfg: CampaignConfig, episode: int, out: str | os.PathLike) -> str:
     """The command that flies episode ``episode`` of this campaign again, alone, into
     ``out/refly-<episode>``: the same options, so the same draw, run spec and run-file name
-    (``--only``); it reproduces the episode's numbers (``tests/test_campaign.py`` checks it
+    (``--only``); it reproduces the episode's numbers (``tests/cli/test_campaign.py`` checks it
     bit for bit on the trajectory)."""
     args = ["wt-inspect", "campaign", "--controller", cfg.controller, "--seed", str(cfg.seed),
             "--episodes", str(cfg.episodes), "--task", cfg.task, "--max-wind", _num_arg(cfg.max_wind),

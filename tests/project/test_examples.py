@@ -11,7 +11,7 @@ import pytest
 
 from wt_inspect.evaluation.config import load_config
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 EXAMPLES = ROOT / "examples"
 EXPECTED = {   # script -> lines its output must contain
     "01_make_env_and_step.py": ["observation keys: position(3,)", "reward terms of the last step:", "metrics so far:"],

@@ -15,7 +15,7 @@ from wt_inspect.cli import main
 from wt_inspect.evaluation.cli import build_parser, resolve
 from wt_inspect.evaluation.config import KINDS, EvaluateConfig, load_config
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAPER_TOML = ROOT / "examples" / "paper.toml"
 
 

@@ -17,7 +17,7 @@ import pytest
 
 from wt_inspect.evaluation.report import read_csv
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 DRIVER = textwrap.dedent('''
     import os, signal, sys

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 # what each package may import from this project (besides itself)
 ALLOWED = {
     "wt_inspect_env": set(),

@@ -26,7 +26,7 @@ from agents import safe_load  # noqa: E402
 from agents.policy import load_sb3_policy, sidecar_paths  # noqa: E402
 from agents.safe_load import MODELS_DIR, UnsafeModelError, shipped_models, verify_shipped  # noqa: E402
 
-DATA = Path(__file__).parent / "data" / "shipped_model_actions.npz"
+DATA = Path(__file__).parents[1] / "data" / "shipped_model_actions.npz"
 SOURCE = "ppo_surface"
 
 
@@ -100,7 +100,7 @@ def test_shipped_models_have_no_pickles_and_match_their_manifest():
             assert f.name in manifest, f
         verify_shipped(MODELS_DIR / f"{name}.zip")
     import tomllib
-    pyproject = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    pyproject = tomllib.loads((Path(__file__).parents[2] / "pyproject.toml").read_text())
     patterns = pyproject["tool"]["setuptools"]["package-data"]["agents"]
     assert "models/*.json" in patterns and not any("pkl" in p for p in patterns)
 

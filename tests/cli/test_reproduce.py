@@ -13,12 +13,12 @@ import pytest
 from wt_inspect import reproduce
 from wt_inspect.cli import main as cli_main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_the_checkout_passes_the_check():
     """Everything but re-flying the behaviour digests (CI runs ``wt-inspect reproduce --check``
-    after the tests, which flies them; tests/test_behaviour.py checks that machinery)."""
+    after the tests, which flies them; tests/cli/test_behaviour.py checks that machinery)."""
     out = io.StringIO()
     studies = reproduce.load_manifest(ROOT / reproduce.MANIFEST)
     assert reproduce.check(ROOT, studies, out=out, fly=False) == 0, out.getvalue()

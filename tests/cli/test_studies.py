@@ -13,7 +13,7 @@ import pytest
 
 from wt_inspect.cli import main as cli_main
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def test_results_hold_no_python():
