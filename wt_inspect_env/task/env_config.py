@@ -187,6 +187,11 @@ class EnvConfig:
     camera_resolution: ``(width, height)`` of those images [px] (small: they are rendered in
         software every control step).
     depth_far: far clipping distance of the rendered images [m] (depth saturates there).
+    structure_observation: add the key ``structure`` (float32 (4,)): the vector from the drone to
+        the nearest point of the turbine's collision mesh of the rotor position it flies in (world
+        frame [m]) and that distance [m] - what an agent needs to keep d_min by itself (the MPCs
+        get the same nearest points through their clearance constraint). Exact (libigl's AABB
+        tree), computed for every drone each step; off, nothing is computed.
     """
 
     task: str = "full"
@@ -228,6 +233,7 @@ class EnvConfig:
     obs_mode: str = "state"
     camera_resolution: tuple[int, int] = (84, 84)
     depth_far: float = 50.0
+    structure_observation: bool = False
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -322,6 +328,8 @@ class EnvConfig:
         if self.randomization is not None:
             self.randomization.check_airframe(self.drone)
         check_choice("obs_mode", self.obs_mode, OBS_MODES)
+        if not isinstance(self.structure_observation, bool):
+            raise ValueError(f"structure_observation must be a bool, got {self.structure_observation!r}")
         res = self.camera_resolution
         if (isinstance(res, (str, bytes)) or not hasattr(res, "__len__") or len(res) != 2
                 or any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1024 for v in res)):

@@ -31,6 +31,7 @@ from ..native.world_core import observation_dict
 from ..physics.dynamics import yaw_to_quat
 from ..physics.sim_config import SimConfig
 from ..physics.wind import WindField, make_wind
+from ..planner.clearance import DistanceField
 from ..scene.camera import GimbalCamera
 from ..task.coverage import TriangleVisibility
 from ..task.env_config import EnvConfig
@@ -153,6 +154,9 @@ class InspectionWorld:
         self._noise_drones: list[int] = []        # drones whose episode draws observation noise
         self._latency_drones: list[int] = []      # ... and command latency
         self._fused_step: Any = None
+        # exact nearest points of each rotor position's collision mesh (structure_observation)
+        self._structure = ([DistanceField(t.mesh.triangles) for t in mission.turbines]
+                           if cfg.structure_observation else None)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -325,6 +329,7 @@ class InspectionWorld:
         buf["actions"][:] = actions
         lib.wt_world_finish(wp)
         obs = observation_dict(buf["obs"].copy())
+        self._add_structure(obs, ~finite)
         self._add_noise(obs, ~finite, None)
         terms = buf["terms"].copy()
         return StepResult(obs, buf["reward"].copy(), {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)},
@@ -365,8 +370,27 @@ class InspectionWorld:
         """All drones' observations (the hooks') with randomised observation noise drawn for the
         drones in ``noisy`` (default all) that are not ``safe`` - once per drone and step."""
         obs = self.hooks.observations(self, safe)
+        self._add_structure(obs, safe)
         self._add_noise(obs, safe, noisy)
         return obs
+
+    def _add_structure(self, obs: dict[str, np.ndarray], safe: np.ndarray) -> None:
+        """The ``structure`` entry (``EnvConfig.structure_observation``): from each drone to the
+        nearest point of its rotor position's collision mesh (world frame) and that distance; 0
+        for the ``safe`` rows (non-finite states). From the true position: randomised observation
+        noise is not applied to it (a real drone would sense the structure with its own sensor)."""
+        if self._structure is None:
+            return
+        out = np.zeros((self.n, 4), dtype=np.float32)
+        pos = np.asarray(obs["position"], dtype=np.float64)
+        ok = ~np.asarray(safe, dtype=bool) & np.isfinite(pos).all(axis=1)
+        for k, field in enumerate(self._structure):
+            rows = np.flatnonzero(ok & (self.phase_index == k))
+            if len(rows):
+                c, d = field.closest(pos[rows])
+                out[rows, 0:3] = c - pos[rows]
+                out[rows, 3] = d
+        obs["structure"] = out
 
     def _add_noise(self, obs: dict[str, np.ndarray], safe: np.ndarray, noisy: Any) -> None:
         """Randomised observation noise for the drones in ``noisy`` (default all) that draw it and
