@@ -55,6 +55,10 @@ class RewardConfig:
     * ``centering``: per second, times the heading function ``h`` in [-1, 1] (the paper's CM).
     * ``effort``: per second, times the squared distance of the normalised action from hover.
     * ``crash``: one-off penalty on collision, leaving the working volume or a non-finite state.
+    * ``clearance``: per second, times the shortfall below d_min as a share of it,
+      ``max(0, d_min - d) / d_min`` with ``d`` the distance to the structure (the turbine mesh of the
+      flown rotor position; reported as the term ``clearance``). 0 (default): off. On, the task's
+      step takes the hooks' general path (the compiled step knows no structure distances).
     """
 
     coverage: float = 100.0
@@ -63,6 +67,7 @@ class RewardConfig:
     centering: float = 0.5
     effort: float = 0.05
     crash: float = 100.0
+    clearance: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self, "reward ")
@@ -170,6 +175,11 @@ class EnvConfig:
         optimum PPO seeds sit in for a long time (early termination, as in motion imitation).
         Not checked while the drone waits for a phase change (the rotor turn), where the pose
         moves to the next phase's start.
+    clearance_limit: end the episode (``terminated``, ``info["termination"] == "too_close"``, the
+        crash penalty) once the drone is closer than this [m] to the structure (the turbine mesh of
+        the flown rotor position); ``None`` (default): no such limit. For training agents that keep
+        d_min by themselves (set it a little below ``d_min``); like ``reward.clearance`` it takes
+        the hooks' general path.
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and
@@ -226,6 +236,7 @@ class EnvConfig:
     start_progress: float = 0.0
     working_margin: float = 30.0
     pose_error_limit: float | None = None
+    clearance_limit: float | None = None
     occlusion: bool = True
     end_hold_s: float = 2.0
     seed: int | None = None
@@ -310,6 +321,8 @@ class EnvConfig:
         check_positive("working_margin", self.working_margin)
         if self.pose_error_limit is not None:
             check_positive("pose_error_limit", self.pose_error_limit)
+        if self.clearance_limit is not None:
+            check_positive("clearance_limit", self.clearance_limit)
         check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0):
             raise ValueError(f"seed must be a non-negative integer or None, got {self.seed!r}")

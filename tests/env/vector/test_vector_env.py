@@ -80,6 +80,11 @@ def test_the_structure_entry_of_drone_i_is_the_single_envs_across_autoresets():
     assert seen["resets"] >= 3
 
 
+def test_the_clearance_terms_of_drone_i_are_the_single_envs():
+    # clearance_limit and reward.clearance take the hooks' general path in both envs
+    _run_side_by_side(2, 40, start_noise=0.5, clearance_limit=2.5, reward={"clearance": 1.0})
+
+
 def test_far_start_across_the_rotor_plane_matches_the_single_env():
     # the per-drone working volume holds each drone's start, as the single env's does
     seen = _run_side_by_side(2, 40, start_offset=(0.0, 40.0, 0.0), start_noise=0.5)

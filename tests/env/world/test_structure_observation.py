@@ -87,3 +87,59 @@ def test_the_structure_feature_is_the_entry_in_the_body_frame():
     feats.update(slice(None), obs)
     with pytest.raises(ValueError, match="structure_observation=True"):
         feats.features()
+
+
+def _start_near_the_surface(env, gap: float, seed: int = 0):
+    """Reset ``env`` with its start moved ``gap`` metres towards the surface from the stand-off
+    pose (along the first point's horizontal normal)."""
+    obs, _ = env.reset(seed=seed)
+    n = np.asarray(obs["normal"], dtype=np.float64)
+    n_xy = np.array([n[0], n[1], 0.0]) / np.hypot(n[0], n[1])
+    return env.reset(seed=seed, options={"start_offset": (-gap * n_xy).tolist()})
+
+
+def test_clearance_limit_ends_the_episode_too_close_with_the_crash_penalty():
+    """Started 2 m from the blade surface (d_min 3 m), hovering: with ``clearance_limit=2.9`` the
+    first step ends the episode as ``too_close`` with the crash penalty; without it the episode
+    goes on."""
+    for limit in (2.9, None):
+        env = gym.make(ENV, clearance_limit=limit, structure_observation=True, wind="none")
+        try:
+            obs, _ = _start_near_the_surface(env, 5.0)
+            assert float(obs["structure"][3]) < 2.5
+            _, reward, term, trunc, info = env.step(env.unwrapped.scaling.hover_action().astype(np.float32))
+            if limit is None:
+                assert not term and info["termination"] in (None, "")
+            else:
+                assert term and info["termination"] == "too_close"
+                assert info["reward_terms"]["crash"] == pytest.approx(-env.unwrapped.config.reward.crash)
+        finally:
+            env.close()
+
+
+def test_the_clearance_reward_term_is_the_shortfall_below_d_min():
+    """``reward.clearance`` = w: the term is -w dt max(0, d_min - d) / d_min with d the exact distance
+    (brute force over every triangle); 0 at the stand-off."""
+    env = gym.make(ENV, reward={"clearance": 2.0}, wind="none")
+    try:
+        u = env.unwrapped
+        hover = u.scaling.hover_action().astype(np.float32)
+        env.reset(seed=0)
+        _, _, _, _, info = env.step(hover)
+        assert info["reward_terms"]["clearance"] == 0.0
+        _start_near_the_surface(env, 5.0)
+        _, _, _, _, info = env.step(hover)
+        tris = u.mission.turbines[u.phase_index].mesh.triangles
+        d = float(brute_distance(u.sim.state[0:1, 0:3], tris)[0])
+        d_min = u.config.d_min
+        assert d < d_min - 0.5
+        assert info["reward_terms"]["clearance"] == pytest.approx(-2.0 * u.dt * (d_min - d) / d_min, rel=1e-9)
+    finally:
+        env.close()
+
+
+def test_bad_clearance_options_name_the_field():
+    with pytest.raises(ValueError, match="clearance_limit"):
+        gym.make(ENV, clearance_limit=-1.0)
+    with pytest.raises(ValueError, match="clearance"):
+        gym.make(ENV, reward={"clearance": -1.0})
