@@ -133,6 +133,12 @@ class BatchedFeatures:
                 parts.append(self.last_action)
             elif g in ("progress", "coverage"):
                 parts.append(o[g].reshape(-1, 1))
+            elif g == "structure_body":
+                if "structure" not in o:
+                    raise ValueError("feature group 'structure_body' needs the observation entry 'structure': "
+                                     "make the env with structure_observation=True")
+                st = o["structure"]
+                parts.append(np.concatenate([body(st[:, 0:3]), st[:, 3:4]], axis=1) / self.standoff)
         return np.clip(np.concatenate(parts, axis=1), -cfg.clip, cfg.clip).astype(np.float32)
 
 

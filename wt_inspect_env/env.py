@@ -60,13 +60,16 @@ IMAGE_KEYS = {"state": (), "rgb": ("rgb",), "depth": ("depth",), "rgbd": ("rgb",
 
 
 def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84, 84),
-                      depth_far: float = 50.0) -> spaces.Dict:
+                      depth_far: float = 50.0, structure: bool = False) -> spaces.Dict:
     """The Dict observation space of one drone (see :mod:`~wt_inspect_env.task.spaces`); the image
     modes add ``rgb`` (uint8 (h, w, 3), the layout stable-baselines3's CNN policies expect) and/or
-    ``depth`` (float32 (h, w, 1) [m]) to the state entries, which every policy still reads."""
+    ``depth`` (float32 (h, w, 1) [m]) to the state entries, which every policy still reads;
+    ``structure`` adds the nearest structure point (``EnvConfig.structure_observation``)."""
     bounds = {"quaternion": (-1.0, 1.0), "normal": (-1.0, 1.0), "coverage": (0.0, 1.0),
               "progress": (0.0, 1.0)}
     entries = {k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()}
+    if structure:
+        entries["structure"] = _box((4,), -np.inf, np.inf)
     w, h = resolution
     if "rgb" in IMAGE_KEYS[obs_mode]:
         entries["rgb"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)
@@ -110,7 +113,8 @@ class WindTurbineInspectionEnv(gym.Env):
         if render_mode == "human":
             self.sim.enable_gui()  # pragma: no cover - needs a display
         self.action_space = spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        self.observation_space = observation_space(cfg.obs_mode, cfg.camera_resolution, cfg.depth_far)
+        self.observation_space = observation_space(cfg.obs_mode, cfg.camera_resolution, cfg.depth_far,
+                                                   cfg.structure_observation)
         self.episode_config = cfg
         self._constructor_wind = world.winds[0]
         self._started = False

@@ -74,6 +74,14 @@ class DistanceField:
         self._tree = igl.AABB()
         self._tree.init(self._vertices, self._faces)
 
+    def closest(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The closest mesh point (P, 3) and the distance (P,) of each of the (P, 3) ``points``."""
+        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        if len(pts) == 0:
+            return np.zeros((0, 3)), np.zeros(0)
+        sq, _, c = self._tree.squared_distance(self._vertices, self._faces, pts)
+        return np.asarray(c, dtype=np.float64).reshape(-1, 3), np.sqrt(np.asarray(sq, dtype=np.float64).reshape(-1))
+
     def distance(self, points: np.ndarray, max_distance: float) -> np.ndarray:
         """Distance of each point to the mesh, exact below ``max_distance`` (else ``max_distance``)."""
         pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))

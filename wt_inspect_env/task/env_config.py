@@ -55,6 +55,10 @@ class RewardConfig:
     * ``centering``: per second, times the heading function ``h`` in [-1, 1] (the paper's CM).
     * ``effort``: per second, times the squared distance of the normalised action from hover.
     * ``crash``: one-off penalty on collision, leaving the working volume or a non-finite state.
+    * ``clearance``: per second, times the shortfall below d_min as a share of it,
+      ``max(0, d_min - d) / d_min`` with ``d`` the distance to the structure (the turbine mesh of the
+      flown rotor position; reported as the term ``clearance``). 0 (default): off. On, the task's
+      step takes the hooks' general path (the compiled step knows no structure distances).
     """
 
     coverage: float = 100.0
@@ -63,6 +67,7 @@ class RewardConfig:
     centering: float = 0.5
     effort: float = 0.05
     crash: float = 100.0
+    clearance: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self, "reward ")
@@ -170,6 +175,11 @@ class EnvConfig:
         optimum PPO seeds sit in for a long time (early termination, as in motion imitation).
         Not checked while the drone waits for a phase change (the rotor turn), where the pose
         moves to the next phase's start.
+    clearance_limit: end the episode (``terminated``, ``info["termination"] == "too_close"``, the
+        crash penalty) once the drone is closer than this [m] to the structure (the turbine mesh of
+        the flown rotor position); ``None`` (default): no such limit. For training agents that keep
+        d_min by themselves (set it a little below ``d_min``); like ``reward.clearance`` it takes
+        the hooks' general path.
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and
@@ -187,6 +197,11 @@ class EnvConfig:
     camera_resolution: ``(width, height)`` of those images [px] (small: they are rendered in
         software every control step).
     depth_far: far clipping distance of the rendered images [m] (depth saturates there).
+    structure_observation: add the key ``structure`` (float32 (4,)): the vector from the drone to
+        the nearest point of the turbine's collision mesh of the rotor position it flies in (world
+        frame [m]) and that distance [m] - what an agent needs to keep d_min by itself (the MPCs
+        get the same nearest points through their clearance constraint). Exact (libigl's AABB
+        tree), computed for every drone each step; off, nothing is computed.
     """
 
     task: str = "full"
@@ -221,6 +236,7 @@ class EnvConfig:
     start_progress: float = 0.0
     working_margin: float = 30.0
     pose_error_limit: float | None = None
+    clearance_limit: float | None = None
     occlusion: bool = True
     end_hold_s: float = 2.0
     seed: int | None = None
@@ -228,6 +244,7 @@ class EnvConfig:
     obs_mode: str = "state"
     camera_resolution: tuple[int, int] = (84, 84)
     depth_far: float = 50.0
+    structure_observation: bool = False
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -304,6 +321,8 @@ class EnvConfig:
         check_positive("working_margin", self.working_margin)
         if self.pose_error_limit is not None:
             check_positive("pose_error_limit", self.pose_error_limit)
+        if self.clearance_limit is not None:
+            check_positive("clearance_limit", self.clearance_limit)
         check_positive("end_hold_s", self.end_hold_s, allow_zero=True)
         if self.seed is not None and (isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0):
             raise ValueError(f"seed must be a non-negative integer or None, got {self.seed!r}")
@@ -322,6 +341,8 @@ class EnvConfig:
         if self.randomization is not None:
             self.randomization.check_airframe(self.drone)
         check_choice("obs_mode", self.obs_mode, OBS_MODES)
+        if not isinstance(self.structure_observation, bool):
+            raise ValueError(f"structure_observation must be a bool, got {self.structure_observation!r}")
         res = self.camera_resolution
         if (isinstance(res, (str, bytes)) or not hasattr(res, "__len__") or len(res) != 2
                 or any(isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 1024 for v in res)):

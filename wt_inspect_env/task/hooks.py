@@ -38,6 +38,9 @@ class WorldView(Protocol):
     def coverage(self) -> np.ndarray:
         """(N,) share of the mission's inspected triangles each drone has seen this episode."""
 
+    def structure(self) -> tuple[np.ndarray, np.ndarray]:
+        """(N, 3) vectors to the nearest structure point and (N,) distances (inf: non-finite state)."""
+
 TERMINATIONS = (None, "non_finite_state", "collision", "left_working_volume", "lost_pose")
 
 
@@ -67,16 +70,30 @@ class TaskHooks:
     def rewards(self, world: WorldView, actions: np.ndarray, n_new: np.ndarray,
                 terminated: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Reward per drone and its named terms (``info["reward_terms"]``) for the normalised
-        ``actions`` (N, 4), the triangles each drone saw for the first time and who terminated."""
+        ``actions`` (N, 4), the triangles each drone saw for the first time and who terminated
+        (with a ``reward.clearance`` weight, the term ``clearance`` too)."""
         s = world.reference.sample
-        return reward_terms(world.config.reward, world.dt, world.n_triangles, actions, world.hover_action,
-                            world.sim.state, s.ideal_position, s.point, n_new, terminated)
+        w = world.config.reward
+        reward, terms = reward_terms(w, world.dt, world.n_triangles, actions, world.hover_action,
+                                     world.sim.state, s.ideal_position, s.point, n_new, terminated)
+        if w.clearance > 0.0:
+            d_min = world.config.d_min
+            short = np.maximum(0.0, d_min - world.structure()[1]) / d_min
+            terms["clearance"] = np.where(np.isfinite(short), -w.clearance * world.dt * short, 0.0)
+            reward = reward + terms["clearance"]
+        return reward, terms
 
     def terminations(self, world: WorldView, state: np.ndarray, finite: np.ndarray,
                      collision: np.ndarray) -> np.ndarray:
         """Termination code per drone (0: goes on): a non-finite state, a collision, leaving the
         working volume or, with ``pose_error_limit``, straying from the stand-off pose (not while
-        the reference waits for the rotor turn)."""
+        the reference waits for the rotor turn), or, with ``clearance_limit``, coming closer than
+        that to the structure (``"too_close"``)."""
         s = world.reference.sample
-        return termination_codes(state, collision, world.volume_lo, world.volume_hi, s.ideal_position,
+        code = termination_codes(state, collision, world.volume_lo, world.volume_hi, s.ideal_position,
                                  s.waiting_for_phase_change, world.config.pose_error_limit)
+        limit = world.config.clearance_limit
+        if limit is not None:
+            close = (code == 0) & (world.structure()[1] < limit)
+            code[close] = self.code_for("too_close")
+        return code

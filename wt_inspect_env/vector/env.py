@@ -120,7 +120,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.dt, self.camera = world.dt, world.camera
         self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
-        self.single_observation_space = observation_space()
+        self.single_observation_space = observation_space(structure=self.config.structure_observation)
         self.action_space = batch_space(self.single_action_space, n)
         self.observation_space = batch_space(self.single_observation_space, n)
         self._seeded = False

@@ -31,6 +31,7 @@ from ..native.world_core import observation_dict
 from ..physics.dynamics import yaw_to_quat
 from ..physics.sim_config import SimConfig
 from ..physics.wind import WindField, make_wind
+from ..planner.clearance import DistanceField
 from ..scene.camera import GimbalCamera
 from ..task.coverage import TriangleVisibility
 from ..task.env_config import EnvConfig
@@ -153,6 +154,11 @@ class InspectionWorld:
         self._noise_drones: list[int] = []        # drones whose episode draws observation noise
         self._latency_drones: list[int] = []      # ... and command latency
         self._fused_step: Any = None
+        # exact nearest points of each rotor position's collision mesh, for the structure
+        # observation and the optional clearance terms of the task (the hooks' general path)
+        self._clearance_terms = cfg.clearance_limit is not None or cfg.reward.clearance > 0.0
+        self._structure = ([DistanceField(t.mesh.triangles) for t in mission.turbines]
+                           if cfg.structure_observation or self._clearance_terms else None)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -268,7 +274,8 @@ class InspectionWorld:
 
         With the default hooks and the world's own simulator the whole step after the flight is
         two compiled calls (:meth:`_step_fused`); hooks of a subclass (or a stand-in simulator such
-        as a vehicle link) take the general path, which calls them. Both give the same numbers."""
+        as a vehicle link) and the optional clearance terms (``clearance_limit``,
+        ``reward.clearance``) take the general path, which calls them. Both give the same numbers."""
         self.sim.step(self.commands(actions))
         self.steps += 1
         if self._fused_ok():
@@ -278,7 +285,8 @@ class InspectionWorld:
     def _fused_ok(self) -> bool:
         h = type(self.hooks)
         return (type(self.sim) is BatchedQuadrotorSim and h.observations is TaskHooks.observations
-                and h.rewards is TaskHooks.rewards and h.terminations is TaskHooks.terminations)
+                and h.rewards is TaskHooks.rewards and h.terminations is TaskHooks.terminations
+                and not self._clearance_terms)
 
     def _fused(self) -> Any:
         """The compiled step's view of the world's arrays (built once; they are updated in place)."""
@@ -325,6 +333,7 @@ class InspectionWorld:
         buf["actions"][:] = actions
         lib.wt_world_finish(wp)
         obs = observation_dict(buf["obs"].copy())
+        self._add_structure(obs, ~finite)
         self._add_noise(obs, ~finite, None)
         terms = buf["terms"].copy()
         return StepResult(obs, buf["reward"].copy(), {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)},
@@ -365,8 +374,39 @@ class InspectionWorld:
         """All drones' observations (the hooks') with randomised observation noise drawn for the
         drones in ``noisy`` (default all) that are not ``safe`` - once per drone and step."""
         obs = self.hooks.observations(self, safe)
+        self._add_structure(obs, safe)
         self._add_noise(obs, safe, noisy)
         return obs
+
+    def structure(self) -> tuple[np.ndarray, np.ndarray]:
+        """Each drone's vector to the nearest point of its rotor position's collision mesh (N, 3)
+        (world frame [m]) and that distance (N,) from its true position; 0 and inf for a drone
+        whose state is not finite. Needs ``structure_observation``, ``clearance_limit`` or a
+        ``reward.clearance`` weight (the meshes' search trees are built only then)."""
+        if self._structure is None:
+            raise RuntimeError("the world keeps no structure distances: set structure_observation=True, "
+                               "clearance_limit or reward.clearance")
+        vec, dist = np.zeros((self.n, 3)), np.full(self.n, np.inf)
+        pos = self.sim.state[:, 0:3]
+        ok = np.isfinite(self.sim.state).all(axis=1)
+        for k, field in enumerate(self._structure):
+            rows = np.flatnonzero(ok & (self.phase_index == k))
+            if len(rows):
+                c, d = field.closest(pos[rows])
+                vec[rows], dist[rows] = c - pos[rows], d
+        return vec, dist
+
+    def _add_structure(self, obs: dict[str, np.ndarray], safe: np.ndarray) -> None:
+        """The ``structure`` entry (``EnvConfig.structure_observation``): :meth:`structure`, 0 for
+        the ``safe`` rows (non-finite states). From the true position: randomised observation
+        noise is not applied to it (a real drone would sense the structure with its own sensor)."""
+        if not self.config.structure_observation:
+            return
+        vec, dist = self.structure()
+        out = np.zeros((self.n, 4), dtype=np.float32)
+        ok = ~np.asarray(safe, dtype=bool) & np.isfinite(dist)
+        out[ok, 0:3], out[ok, 3] = vec[ok], dist[ok]
+        obs["structure"] = out
 
     def _add_noise(self, obs: dict[str, np.ndarray], safe: np.ndarray, noisy: Any) -> None:
         """Randomised observation noise for the drones in ``noisy`` (default all) that draw it and

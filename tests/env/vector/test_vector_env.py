@@ -75,6 +75,16 @@ def _run_side_by_side(n: int, steps: int, seed: int = 3, env_id: str = ENV, wind
     return seen
 
 
+def test_the_structure_entry_of_drone_i_is_the_single_envs_across_autoresets():
+    seen = _run_side_by_side(3, 60, start_noise=0.5, time_limit_s=0.25, structure_observation=True)
+    assert seen["resets"] >= 3
+
+
+def test_the_clearance_terms_of_drone_i_are_the_single_envs():
+    # clearance_limit and reward.clearance take the hooks' general path in both envs
+    _run_side_by_side(2, 40, start_noise=0.5, clearance_limit=2.5, reward={"clearance": 1.0})
+
+
 def test_far_start_across_the_rotor_plane_matches_the_single_env():
     # the per-drone working volume holds each drone's start, as the single env's does
     seen = _run_side_by_side(2, 40, start_offset=(0.0, 40.0, 0.0), start_noise=0.5)
@@ -93,8 +103,9 @@ def test_drone_i_is_the_single_env_seeded_s_plus_i_across_autoresets(n):
 @pytest.mark.slow
 def test_equivalence_through_the_rotor_turn():
     # open-loop reference at 60 m/s: phase 1 ends after ~10 s, the rotor turns, phase 2 follows
+    # with the structure entry: it follows each drone's rotor position through the turn
     seen = _run_side_by_side(2, 1700, wind="none", reference_mode="open_loop", reference_speed=60.0,
-                             start_noise=0.3, time_limit_s=16.0, action_sd=0.01)
+                             start_noise=0.3, time_limit_s=16.0, action_sd=0.01, structure_observation=True)
     assert seen["max_phase"] == 2
 
 

@@ -79,7 +79,7 @@ def _markdown(cfg: CampaignConfig, summary: Mapping[str, Any], rows: Sequence[Ma
         f"| episodes with a collision | {s['episodes_with_collisions']} | 0 |",
         f"| missions completed | {s['mission_complete']} of {s['episodes']} | all |",
         f"| episodes with clearance to the structure below d_min = {d_min:g} m | {s['clearance_below_d_min']} | 0 |",
-        f"| episodes whose reference stalled (moved on without the drone) | {s['episodes_with_stalls']} | 0 |",
+        f"| episodes whose reference stalled | {s['episodes_with_stalls']} | 0 |",
         f"| QP fallbacks | {s['fallback_steps']:.0f} of {s['steps']} steps ({100 * s['fallback_fraction']:.4f} %) "
         f"| < 0.01 % |",
         f"| worker memory (RSS after each episode) | {s['rss_first_mb']:.1f} -> {s['rss_last_mb']:.1f} MB, max "

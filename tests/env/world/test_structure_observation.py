@@ -1,0 +1,145 @@
+"""The ``structure`` observation entry (``structure_observation=True``): the nearest point of the
+turbine, exact against a brute-force distance over every triangle, in the single and the vector env,
+and the agents' ``structure_body`` feature built from it."""
+from __future__ import annotations
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+from oracles import brute_distance
+
+import wt_inspect_env  # noqa: F401 - registers the env ids
+from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
+
+ENV = "WindTurbineInspection-v0"
+
+
+def test_off_by_default_the_observation_is_unchanged():
+    env = gym.make(ENV)
+    try:
+        obs, _ = env.reset(seed=0)
+        assert "structure" not in obs and "structure" not in env.observation_space.spaces
+    finally:
+        env.close()
+
+
+def test_the_entry_is_the_nearest_mesh_point_of_the_flown_rotor_position():
+    """Random hovering flight from starts scattered around the stand-off: at every step the entry's
+    distance equals the brute-force distance to the active rotor position's mesh (float32 entry:
+    to 1e-4 relative), its vector points from the drone to a point on that mesh, and its length
+    is the distance."""
+    plain = gym.make(ENV, structure_observation=True)
+    try:
+        check_env(plain.unwrapped, skip_render_check=True)
+    finally:
+        plain.close()
+    env = gym.make(ENV, structure_observation=True, start_noise=3.0)
+    try:
+        u = env.unwrapped
+        rng = np.random.default_rng(0)
+        for seed in range(3):
+            obs, _ = env.reset(seed=seed)
+            hover = u.scaling.hover_action()
+            for t in range(30):
+                if t % 10 == 0:
+                    tris = u.mission.turbines[u.phase_index].mesh.triangles
+                    pos = obs["position"].astype(np.float64)
+                    vec, d = obs["structure"][0:3].astype(np.float64), float(obs["structure"][3])
+                    ref = float(brute_distance(pos[None], tris)[0])
+                    assert d == pytest.approx(ref, rel=1e-4)
+                    assert np.linalg.norm(vec) == pytest.approx(d, rel=1e-4)
+                    assert float(brute_distance((pos + vec)[None], tris)[0]) < 1e-3 * max(d, 1.0)
+                act = np.clip(hover + rng.normal(0.0, 0.05, 4), -1, 1).astype(np.float32)
+                obs, _, term, trunc, _ = env.step(act)
+                if term or trunc:
+                    break
+    finally:
+        env.close()
+
+
+def test_a_bad_option_names_the_field():
+    with pytest.raises(ValueError, match="structure_observation"):
+        gym.make(ENV, structure_observation=1)
+
+
+def test_the_structure_feature_is_the_entry_in_the_body_frame():
+    """``structure_body`` = R^T (c - x) / d_ref and |c - x| / d_ref; asking for it without the entry
+    is refused with the option to set."""
+    from agents.interface import BatchedFeatures
+    from agents.wrappers import FeatureConfig
+    cfg = FeatureConfig(groups=("structure_body",))
+    feats = BatchedFeatures(cfg, 2, standoff=7.0, dt=0.01, max_rate=1.7)
+    yaw = np.pi / 2                                       # body x along world y
+    q = np.array([[0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)], [0.0, 0.0, 0.0, 1.0]])
+    obs = {"position": np.zeros((2, 3)), "velocity_body": np.zeros((2, 3)), "quaternion": q,
+           "body_rates": np.zeros((2, 3)), "point": np.ones((2, 3)), "normal": np.tile([1.0, 0.0, 0.0], (2, 1)),
+           "point_velocity": np.zeros((2, 3)), "coverage": np.zeros((2, 1)), "progress": np.zeros((2, 1)),
+           "structure": np.array([[0.0, 3.5, 0.0, 3.5], [1.4, 0.0, 0.0, 1.4]])}
+    feats.update(slice(None), obs)
+    f = feats.features()
+    R0 = quat_to_rotmat_np(q[0])
+    np.testing.assert_allclose(f[0], np.append(R0.T @ [0.0, 3.5, 0.0], 3.5) / 7.0, atol=1e-6)
+    np.testing.assert_allclose(f[0, :3], [0.5, 0.0, 0.0], atol=1e-6)     # ahead of the camera
+    np.testing.assert_allclose(f[1], [0.2, 0.0, 0.0, 0.2], atol=1e-6)
+    del obs["structure"]
+    feats = BatchedFeatures(cfg, 2, standoff=7.0, dt=0.01, max_rate=1.7)
+    feats.update(slice(None), obs)
+    with pytest.raises(ValueError, match="structure_observation=True"):
+        feats.features()
+
+
+def _start_near_the_surface(env, gap: float, seed: int = 0):
+    """Reset ``env`` with its start moved ``gap`` metres towards the surface from the stand-off
+    pose (along the first point's horizontal normal)."""
+    obs, _ = env.reset(seed=seed)
+    n = np.asarray(obs["normal"], dtype=np.float64)
+    n_xy = np.array([n[0], n[1], 0.0]) / np.hypot(n[0], n[1])
+    return env.reset(seed=seed, options={"start_offset": (-gap * n_xy).tolist()})
+
+
+def test_clearance_limit_ends_the_episode_too_close_with_the_crash_penalty():
+    """Started 2 m from the blade surface (d_min 3 m), hovering: with ``clearance_limit=2.9`` the
+    first step ends the episode as ``too_close`` with the crash penalty; without it the episode
+    goes on."""
+    for limit in (2.9, None):
+        env = gym.make(ENV, clearance_limit=limit, structure_observation=True, wind="none")
+        try:
+            obs, _ = _start_near_the_surface(env, 5.0)
+            assert float(obs["structure"][3]) < 2.5
+            _, reward, term, trunc, info = env.step(env.unwrapped.scaling.hover_action().astype(np.float32))
+            if limit is None:
+                assert not term and info["termination"] in (None, "")
+            else:
+                assert term and info["termination"] == "too_close"
+                assert info["reward_terms"]["crash"] == pytest.approx(-env.unwrapped.config.reward.crash)
+        finally:
+            env.close()
+
+
+def test_the_clearance_reward_term_is_the_shortfall_below_d_min():
+    """``reward.clearance`` = w: the term is -w dt max(0, d_min - d) / d_min with d the exact distance
+    (brute force over every triangle); 0 at the stand-off."""
+    env = gym.make(ENV, reward={"clearance": 2.0}, wind="none")
+    try:
+        u = env.unwrapped
+        hover = u.scaling.hover_action().astype(np.float32)
+        env.reset(seed=0)
+        _, _, _, _, info = env.step(hover)
+        assert info["reward_terms"]["clearance"] == 0.0
+        _start_near_the_surface(env, 5.0)
+        _, _, _, _, info = env.step(hover)
+        tris = u.mission.turbines[u.phase_index].mesh.triangles
+        d = float(brute_distance(u.sim.state[0:1, 0:3], tris)[0])
+        d_min = u.config.d_min
+        assert d < d_min - 0.5
+        assert info["reward_terms"]["clearance"] == pytest.approx(-2.0 * u.dt * (d_min - d) / d_min, rel=1e-9)
+    finally:
+        env.close()
+
+
+def test_bad_clearance_options_name_the_field():
+    with pytest.raises(ValueError, match="clearance_limit"):
+        gym.make(ENV, clearance_limit=-1.0)
+    with pytest.raises(ValueError, match="clearance"):
+        gym.make(ENV, reward={"clearance": -1.0})
