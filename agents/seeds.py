@@ -91,14 +91,20 @@ def _run_all(jobs: Sequence[tuple[Mapping[str, Any], int, Path]], *, ray: bool, 
     from tqdm import tqdm
     if jobs and ray:
         ray_ = import_ray()
-        init_ray(address, log_to_driver=False)
-        task = ray_.remote(num_cpus=1)(_one_seed)
-        pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
-        with tqdm(total=n_total, initial=n_total - len(jobs), desc="runs", unit="run", file=sys.stderr) as bar:
-            while pending:
-                ready, pending = ray_.wait(pending, num_returns=1)
-                ray_.get(ready[0])
-                bar.update(1)
+        # a session this call started is shut down when it is done (a second call must not find
+        # it, with its address and CPUs, still there)
+        started = init_ray(address, log_to_driver=False)
+        try:
+            task = ray_.remote(num_cpus=1)(_one_seed)
+            pending = [task.remote(kw, s, str(run), False) for kw, s, run in jobs]
+            with tqdm(total=n_total, initial=n_total - len(jobs), desc="runs", unit="run", file=sys.stderr) as bar:
+                while pending:
+                    ready, pending = ray_.wait(pending, num_returns=1)
+                    ray_.get(ready[0])
+                    bar.update(1)
+        finally:
+            if started:
+                ray_.shutdown()
     else:
         for kw, s, run in jobs:
             _one_seed(kw, s, str(run), progress)

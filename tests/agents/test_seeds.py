@@ -185,6 +185,8 @@ def test_ray_seeds(tmp_path, monkeypatch):
     doc = train_seeds([3, 4], tmp_path / "out", ray=True, **kw)
     assert all((tmp_path / "out" / f"seed_{s}" / "model.zip").is_file() for s in (3, 4))
     assert len(doc["seeds"]) == 2
+    import ray
+    assert not ray.is_initialized()      # the private instance it started is gone
 
 
 def test_shipped_models_resolve_by_name(tmp_path):
