@@ -19,6 +19,18 @@ import numpy as np
 from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
 from wt_inspect_env.task.spaces import ActionScaling
 
+#: feature groups that need an optional observation entry: group -> (entry, the env option that adds it)
+NEEDS_OPTION: dict[str, tuple[str, str]] = {"structure_body": ("structure", "structure_observation=True")}
+
+
+def check_entries(groups: Any, keys: Any) -> None:
+    """ValueError naming the group and the env option when one of the feature ``groups`` needs an
+    observation entry that is not among ``keys``."""
+    for g in groups:
+        if g in NEEDS_OPTION and NEEDS_OPTION[g][0] not in keys:
+            raise ValueError(f"feature group {g!r} needs the observation entry {NEEDS_OPTION[g][0]!r}: "
+                             f"make the env with {NEEDS_OPTION[g][1]}")
+
 
 def camera_heading(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[float, float]:
     """``(sin, cos)`` of the horizontal angle from the camera axis (the horizontal projection of
@@ -134,9 +146,7 @@ class BatchedFeatures:
             elif g in ("progress", "coverage"):
                 parts.append(o[g].reshape(-1, 1))
             elif g == "structure_body":
-                if "structure" not in o:
-                    raise ValueError("feature group 'structure_body' needs the observation entry 'structure': "
-                                     "make the env with structure_observation=True")
+                check_entries((g,), o)
                 st = o["structure"]
                 parts.append(np.concatenate([body(st[:, 0:3]), st[:, 3:4]], axis=1) / self.standoff)
         return np.clip(np.concatenate(parts, axis=1), -cfg.clip, cfg.clip).astype(np.float32)

@@ -80,15 +80,14 @@ from gymnasium import spaces
 from wt_inspect_env.task.spaces import ActionScaling
 from wt_inspect_env.util.validation import check_array, check_choice, check_positive, check_unknown_options
 
-from .interface import BatchedDecoder, BatchedFeatures, camera_heading  # noqa: F401 - camera_heading re-exported
+from .interface import BatchedDecoder, BatchedFeatures, camera_heading, check_entries  # noqa: F401 - camera_heading re-exported
 
 FEATURE_SIZES: dict[str, int] = {
     "ideal_body": 3, "point_body": 3, "velocity_body": 3, "gravity_body": 3, "heading": 2,
     "body_rates": 3, "normal_body": 3, "integral": 3, "last_action": 4, "progress": 1, "coverage": 1,
     "structure_body": 4,
 }
-#: feature groups that need an optional observation entry (group -> the env option that adds it)
-NEEDS_OPTION: dict[str, tuple[str, str]] = {"structure_body": ("structure", "structure_observation=True")}
+
 ACTION_MODES: tuple[str, ...] = ("rates", "attitude")
 DEFAULT_GROUPS: tuple[str, ...] = (
     "ideal_body", "point_body", "velocity_body", "gravity_body", "heading", "body_rates",
@@ -321,20 +320,11 @@ class ResidualHoverAction:
         return self._batch.decode(*self._checked(u, quaternion))[0]
 
 
-def check_feature_groups(features: FeatureConfig, space: Any) -> None:
-    """ValueError naming the group and the env option when a feature group needs an observation
-    entry the env does not provide."""
-    keys = set(getattr(space, "spaces", {}) or {})
-    for g in features.groups:
-        if g in NEEDS_OPTION and NEEDS_OPTION[g][0] not in keys:
-            raise ValueError(f"feature group {g!r} needs the observation entry {NEEDS_OPTION[g][0]!r}: "
-                             f"make the env with {NEEDS_OPTION[g][1]}")
-
-
 def encoder_for(env: gym.Env, spec: AgentSpec) -> FeatureEncoder:
     """A :class:`FeatureEncoder` with the env's stand-off, control period and rate bound."""
     u = env.unwrapped
-    check_feature_groups(spec.features, getattr(u, "single_observation_space", None) or u.observation_space)
+    space = getattr(u, "single_observation_space", None) or u.observation_space
+    check_entries(spec.features.groups, getattr(space, "spaces", {}) or {})
     return FeatureEncoder(spec.features, standoff=u.config.standoff, dt=u.dt, max_rate=u.scaling.max_rate)
 
 

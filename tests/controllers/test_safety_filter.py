@@ -174,6 +174,14 @@ def test_the_last_resort_brake_levels_a_tilted_drone_and_stops_it():
     assert travel < 10.0 * t_r + 0.5 * a0 * t_r ** 2 + v_r ** 2 / (2 * cfg.clearance_brake)
 
 
+def _state_obs(x, point):
+    """An observation of the drone state x = [p, v_B, q] at rest in its body rates, inspecting
+    ``point`` on a surface facing +x."""
+    return {"position": x[0:3], "velocity_body": x[3:6], "quaternion": x[6:10], "body_rates": np.zeros(3),
+            "point": np.array(point, dtype=float), "normal": np.array([1.0, 0.0, 0.0]),
+            "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+
+
 def _wall(x0, y0, x1, y1, normal):
     """Two triangles of a vertical wall from (x0, y0) to (x1, y1), z in [0, 100], facing ``normal``."""
     a, b = np.array([x0, y0, 0.0]), np.array([x1, y1, 0.0])
@@ -233,9 +241,7 @@ def test_a_stage_flying_along_a_wall_must_stop_within_the_free_ray_ahead(speed):
     np.testing.assert_allclose(P[0, npar + 4:npar + 7], (0.0, -1.0, 0.0), atol=1e-9)
     reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
     assert P[0, npar + 7] == pytest.approx(-(min(reach, 0.9 * 3.6) + 3.6) + keep, abs=1e-6)
-    obs = {"position": x0[0:3], "velocity_body": x0[3:6], "quaternion": x0[6:10], "body_rates": np.zeros(3),
-           "point": np.array([0.0, 0.0, 50.0]), "normal": np.array([1.0, 0.0, 0.0]),
-           "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+    obs = _state_obs(x0, point=(0.0, 0.0, 50.0))
     hover = mpc.config.hover_input
     u = mpc.filter_command(hover, obs)
     if speed == 3.0:
@@ -294,9 +300,7 @@ def test_the_filter_estimates_a_steady_push():
     x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     push = np.array([2.0, 0.0, 0.0])
     for _ in range(300):
-        obs = {"position": x[0:3], "velocity_body": x[3:6], "quaternion": x[6:10], "body_rates": np.zeros(3),
-               "point": np.array([-93.0, 0.0, 50.0]), "normal": np.array([1.0, 0.0, 0.0]),
-               "point_velocity": np.zeros(3), "coverage": np.array([0.0]), "progress": np.array([0.0])}
+        obs = _state_obs(x, point=(-93.0, 0.0, 50.0))
         u = mpc.filter_command(cfg.hover_input, obs)
         x = np.asarray(plant(x, u, push)).ravel()
     np.testing.assert_allclose(mpc.disturbance_estimate, push, atol=0.1)

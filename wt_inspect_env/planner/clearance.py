@@ -84,11 +84,7 @@ class DistanceField:
 
     def distance(self, points: np.ndarray, max_distance: float) -> np.ndarray:
         """Distance of each point to the mesh, exact below ``max_distance`` (else ``max_distance``)."""
-        pts = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
-        if len(pts) == 0:
-            return np.full(0, float(max_distance))
-        sq, _, _ = self._tree.squared_distance(self._vertices, self._faces, pts)
-        return np.minimum(np.sqrt(sq), float(max_distance))
+        return np.minimum(self.closest(points)[1], float(max_distance))
 
 
 def sample_polyline(poly: np.ndarray, step: float) -> np.ndarray:

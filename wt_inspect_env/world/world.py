@@ -159,6 +159,7 @@ class InspectionWorld:
         self._clearance_terms = cfg.clearance_limit is not None or cfg.reward.clearance > 0.0
         self._structure = ([DistanceField(t.mesh.triangles) for t in mission.turbines]
                            if cfg.structure_observation or self._clearance_terms else None)
+        self._structure_cache: tuple[np.ndarray, ...] | None = None     # (state, phases, vectors, distances)
 
     # ------------------------------------------------------------------ queries
     @property
@@ -386,14 +387,21 @@ class InspectionWorld:
         if self._structure is None:
             raise RuntimeError("the world keeps no structure distances: set structure_observation=True, "
                                "clearance_limit or reward.clearance")
+        state = self.sim.state
+        cached = self._structure_cache
+        # one query per state: the terminations, the reward and the observation of a step all ask
+        if (cached is not None and np.array_equal(cached[0], state, equal_nan=True)
+                and np.array_equal(cached[1], self.phase_index)):
+            return cached[2], cached[3]
         vec, dist = np.zeros((self.n, 3)), np.full(self.n, np.inf)
-        pos = self.sim.state[:, 0:3]
-        ok = np.isfinite(self.sim.state).all(axis=1)
+        pos = state[:, 0:3]
+        ok = np.isfinite(state).all(axis=1)
         for k, field in enumerate(self._structure):
             rows = np.flatnonzero(ok & (self.phase_index == k))
             if len(rows):
                 c, d = field.closest(pos[rows])
                 vec[rows], dist[rows] = c - pos[rows], d
+        self._structure_cache = (state.copy(), self.phase_index.copy(), vec, dist)
         return vec, dist
 
     def _add_structure(self, obs: dict[str, np.ndarray], safe: np.ndarray) -> None:
