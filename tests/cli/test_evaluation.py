@@ -18,7 +18,7 @@ import pytest
 
 from wt_inspect.evaluation import OutputDirError, evaluate_policy, load_run, registry, run_evaluation
 from wt_inspect.evaluation.cli import main as cli_main
-from wt_inspect.evaluation.report import CSV_COLUMNS, read_csv
+from wt_inspect.evaluation.report import CSV_COLUMNS, ReportContext, markdown, read_csv
 from wt_inspect.evaluation.runner import save_run
 from wt_inspect.evaluation.scenarios import env_options
 from wt_inspect_env.policy import Policy
@@ -330,9 +330,11 @@ def test_results_md_states_the_runs_own_camera_rate_occlusion_and_control_step(t
 
 
 def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
-    """A drone that only hovers: the closed-loop reference waits for it, stalls after
-    reference_stall_time and ends the run; results.csv / results.md carry the stall (the columns
-    were empty before: the row did not read the stall metrics)."""
+    """A drone that only hovers: the closed-loop reference waits for it and stalls after
+    reference_stall_time; by default it moves on and the mission completes without the drone, with
+    ``"end"`` the run ends there. results.csv carries the stalls and the path skipped, the run's
+    stall log when, where and why (a hovering drone far from its pose: not the clearance), the
+    run file keeps the log and results.md lists it."""
     class Hover:
         def __init__(self, env):
             self.a = env.scaling.hover_action()
@@ -344,8 +346,22 @@ def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
             return self.a
 
     res = evaluate_policy(lambda env: Hover(env), scenario="surface", wind=0.0,
-                          env_overrides={"reference_stall_time": 2.0}, record=False)
+                          env_overrides={"reference_stall_time": 2.0, "reference_on_stall": "end"}, record=False)
     row = res.row()
     assert res.termination == "reference_stall" and row["termination"] == "reference_stall"
     assert row["stalls"] == 1.0 and row["skipped_path_m"] == 0.0
+    (event,) = res.stall_log
+    assert event["action"] == "ended" and event["why"].startswith("held off")
+    assert event["time_s"] == pytest.approx(res.sim_time_s, abs=0.2) and event["distance_to_pose_m"] > 1.0
+    assert event["clearance_m"] > 3.5 and 0.0 <= event["progress"] < 0.1
+    res = evaluate_policy(lambda env: Hover(env), scenario="surface", wind=0.0,
+                          env_overrides={"reference_stall_time": 2.0}, record=False)
+    assert res.mission_complete and res.termination == "mission_complete"
+    assert res.metrics["stalls"] >= 1 and res.metrics["skipped_path_m"] > 10.0
+    assert len(res.stall_log) == res.metrics["stalls"] and {e["action"] for e in res.stall_log} == {"skipped"}
+    path = save_run(res, tmp_path / "run.npz")
+    assert load_run(path).stall_log == res.stall_log
+    ctx = ReportContext(scenario="surface")
+    text = markdown([res], ctx)
+    assert "## Reference stalls" in text and text.count("| skipped |") == len(res.stall_log)
     assert {"stalls", "skipped_path_m"} <= set(CSV_COLUMNS)

@@ -227,6 +227,31 @@ def _frames_note(results: Sequence[RunResult]) -> str:
     return f"camera frames at {hz}, {occ}"
 
 
+def _stall_lines(results: Sequence[RunResult]) -> list[str]:
+    """The section listing every reference stall of the runs (none: no section): when and where it
+    happened, what the reference did, and the path it skipped and the coverage the run reached."""
+    stalled = [r for r in results if r.stall_log]
+    if not stalled:
+        return []
+    lines = ["", "## Reference stalls", "",
+             "The closed-loop reference made no progress for `reference_stall_time` while the drone was held "
+             "off its stand-off pose; `skipped`: it moved on along the path without the drone until the drone "
+             "was back on its pose (the run's skipped path and its coverage show what the stall cost), `ended`: "
+             "the episode ended there (`reference_on_stall=\"end\"`).", "",
+             "| controller | wind | seed | time | mission progress | phase | drone to pose | clearance | why "
+             "| then | path skipped (run) | coverage (run) |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---:|"]
+    for r in stalled:
+        s = r.spec
+        for e in r.stall_log:
+            lines.append(f"| {display_name(s.controller)} | {s.wind:g} | {s.seed} | {e['time_s']:.0f} s | "
+                         f"{_pct(e['progress'])} | {e['phase']} | {_m(e['distance_to_pose_m'])} | "
+                         f"{_m(e['clearance_m'])} | {e['why']} | {e['action']} | "
+                         f"{float(r.metrics.get('skipped_path_m', math.nan)):.0f} m | "
+                         f"{_pct(float(r.metrics.get('coverage', math.nan)))} |")
+    return lines
+
+
 def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
     """results.md of an evaluation: the metrics of every run, then how the numbers were made."""
     sc = get_scenario(ctx.scenario)
@@ -294,6 +319,7 @@ def markdown(results: Sequence[RunResult], ctx: ReportContext) -> str:
                      f"{r['collisions']} | {r['flight_time']:.0f} s | "
                      f"{_ms(r['solve_median_ms'])} / {_ms(r['solve_p99_ms'])} | {r['termination']} | "
                      f"{r['wall_time']:.0f} s |")
+    lines += _stall_lines(results)
     filtered = [r for r in rows if math.isfinite(float(r.get("filter_median_ms", math.nan)))]
     if filtered:
         lines += ["", "## Safety filter", "",

@@ -206,6 +206,7 @@ class RunResult:
     arrays: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
     path: Path | None = None
     code: str = ""               # code_fingerprint() of the process that made the run
+    stall_log: list[dict[str, Any]] = field(default_factory=list)   # one record per reference stall
 
     def row(self) -> dict[str, Any]:
         """One row of results.csv (fractions in [0, 1], distances in m, times in s / ms)."""
@@ -224,7 +225,8 @@ class RunResult:
         return {"format": FORMAT, "spec": self.spec.to_dict(), "metrics": self.metrics,
                 "termination": self.termination, "mission_complete": self.mission_complete,
                 "steps": self.steps, "sim_time_s": self.sim_time_s, "wall_time_s": self.wall_time_s,
-                "solve": self.solve, "d_ref": self.d_ref, "safety_margin": self.safety_margin, "code": self.code}
+                "solve": self.solve, "d_ref": self.d_ref, "safety_margin": self.safety_margin, "code": self.code,
+                "stall_log": self.stall_log}
 
 
 def _stats_ms(values: np.ndarray) -> tuple[float, float]:
@@ -402,6 +404,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
     track.add(u.sim, info)
     termination, complete, steps = None, False, 0
     solve: list[float] = []
+    stalls: list[dict[str, Any]] = []
     act_ms: list[float] = []
     next_report = t_start
     while True:
@@ -418,6 +421,8 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         obs, _, terminated, truncated, info = env.step(action)
         steps += 1
         track.add(u.sim, info)
+        if info["stalls"] > len(stalls):
+            stalls.append(_stall_event(u, info, track.n - 1))
         if record:
             i = _record(rec, u, obs, info)
         if terminated or truncated:
@@ -450,6 +455,7 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
         arrays["triangle_face"] = np.asarray(t0.triangle_face, dtype=np.int16)
         arrays["rotor_center"] = np.asarray(t0.rotor_center, dtype=np.float64)
     extra |= {"stalls": float(info["stalls"]), "skipped_path_m": float(info["skipped_m"])}
+    stall_log = [_stall_why(e, per_sample["clearance"], u.config.d_min) for e in stalls]
     solve = {"solve_median_ms": med, "solve_p99_ms": p99, "act_median_ms": amed, "act_p99_ms": ap99}
     report = getattr(getattr(policy, "stats", None), "as_dict", None)   # a safety filter's counts
     if callable(report):
@@ -459,7 +465,47 @@ def fly(env: gym.Env, policy: Any, spec: RunSpec, *, record: bool = True,
                      steps=steps, sim_time_s=float(info["time"]), wall_time_s=time.perf_counter() - t_start,
                      solve=solve,
                      d_ref=float(u.config.standoff), safety_margin=float(u.config.safety_margin), arrays=arrays,
-                     code=code_fingerprint())
+                     code=code_fingerprint(), stall_log=stall_log)
+
+
+# A stall whose drone was within this much [m] of d_min is put down to the clearance constraint
+# (it holds the drone off a pose that lies too close to the structure); farther out, to wind or
+# the controller (the drone is free to move towards its pose and does not).
+STALL_AT_CLEARANCE_M = 0.3
+
+
+def _stall_event(env: Any, info: Mapping[str, Any], step: int) -> dict[str, Any]:
+    """What the run records when the reference stalls: when, where along the mission, how far the
+    drone was from its stand-off pose and what the reference then did (the step index is resolved
+    to the drone's clearance once the run's clearance is computed, see :func:`_stall_why`)."""
+    ref = env.world.reference
+    pos = _position_and_thrusts(env.sim)[0]
+    return {"time_s": float(info["time"]), "progress": float(ref.sample.progress[0]),
+            "phase": int(info["phase"]),
+            "distance_to_pose_m": float(np.linalg.norm(np.asarray(info["ideal_position"]) - pos)),
+            "wind_m_s": float(np.linalg.norm(info["wind"])),
+            "action": "skipped" if env.config.reference_on_stall == "skip" else "ended", "_step": step}
+
+
+def _stall_why(event: dict[str, Any], clearance: np.ndarray, d_min: float) -> dict[str, Any]:
+    """``event`` with the drone's clearance at the stall and the reason read from it."""
+    e = dict(event)
+    c = float(clearance[e.pop("_step")])
+    e["clearance_m"] = c
+    e["why"] = ("held at d_min by the clearance constraint" if c <= d_min + STALL_AT_CLEARANCE_M
+                else "held off its pose (wind or the controller)")
+    return e
+
+
+_STALL_FIELDS = {"time_s", "progress", "phase", "distance_to_pose_m", "wind_m_s", "action", "clearance_m", "why"}
+
+
+def _check_stall_log(path: Path, log: Any) -> list[dict[str, Any]]:
+    """The stall records of a run file, each a JSON object with exactly :data:`_STALL_FIELDS`."""
+    for e in log:
+        if not isinstance(e, dict) or set(e) != _STALL_FIELDS:
+            raise ValueError(f"{path} is not a run file of this format: stall_log entry {e!r}")
+    return list(log)
 
 
 def exception_result(spec: RunSpec, exc: BaseException, wall_time_s: float, steps: int = 0,
@@ -572,8 +618,8 @@ _NUMBER = (int, float)
 _META_FIELDS: dict[str, tuple[type, ...]] = {
     "format": (str,), "spec": (dict,), "metrics": (dict,), "termination": (str, type(None)),
     "mission_complete": (bool,), "steps": (int,), "sim_time_s": _NUMBER, "wall_time_s": _NUMBER,
-    "solve": (dict,), "d_ref": _NUMBER, "safety_margin": _NUMBER, "code": (str,)}
-_META_OPTIONAL = {"code"}
+    "solve": (dict,), "d_ref": _NUMBER, "safety_margin": _NUMBER, "code": (str,), "stall_log": (list,)}
+_META_OPTIONAL = {"code", "stall_log"}
 _SPEC_FIELDS: dict[str, tuple[type, ...]] = {
     "scenario": (str,), "controller": (str,), "wind": _NUMBER, "seed": (int,), "env_options": (dict,),
     "max_time": (int, float, type(None)), "record_every": (int,), "controller_id": (str,), "trust_model": (bool,)}
@@ -627,4 +673,4 @@ def load_run(path: str | Path, *, arrays: bool = True) -> RunResult:
                      mission_complete=meta["mission_complete"], steps=meta["steps"],
                      sim_time_s=meta["sim_time_s"], wall_time_s=meta["wall_time_s"], solve=meta["solve"],
                      d_ref=meta["d_ref"], safety_margin=meta["safety_margin"], arrays=arr, path=path,
-                     code=meta.get("code", ""))
+                     code=meta.get("code", ""), stall_log=_check_stall_log(path, meta.get("stall_log", [])))

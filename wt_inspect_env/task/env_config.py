@@ -144,9 +144,9 @@ class EnvConfig:
         (3 m at 7 m): what the MPCs' clearance constraint keeps, what the harness counts the time
         below, and what the closed-loop reference allows for where an ideal pose lies closer.
     reference_stall_time / reference_on_stall: seconds without progress after which the closed-loop
-        reference stalls (``None``: never), and what then: ``"end"`` the episode (truncated,
-        ``info["stalls"]`` 1; the harness records ``reference_stall``) or ``"skip"`` on without the
-        drone (see :mod:`.reference`).
+        reference stalls (``None``: never), and what then: ``"skip"`` (default) on without the drone
+        until it is back on its pose, the path skipped in ``info["skipped_m"]`` (see :mod:`.reference`),
+        or ``"end"`` the episode (truncated; the harness records ``reference_stall``).
     reference_approach_speed: from a start farther than ``reference_stop`` from the first stand-off
         pose, the reference first approaches from the start at this speed [m/s] (see
         :mod:`.reference`); ``"auto"`` (default): the braking bound sqrt(2 a (standoff - d_min)),
@@ -217,7 +217,7 @@ class EnvConfig:
     reference_lag: float | None = None
     reference_stop: float | None = None
     reference_stall_time: float | None = 20.0
-    reference_on_stall: str = "end"
+    reference_on_stall: str = "skip"
     reference_approach_speed: float | str | None = "auto"
     d_min: float | None = None
     safety_margin: float = 1.0

@@ -27,12 +27,13 @@ constraint stops the drone short of it. ``reach`` (per path sample, from the mis
 much, and the closed loop measures ``e`` less that shortfall: the point does not wait for a pose the
 drone may not take. Should the point still make no progress (``sigma < 0.1``) for ``stall_time``
 seconds - the drone blocked, or held off by wind it cannot beat - the reference *stalls*, and the stall is
-counted (:attr:`BatchedReference.stalls`). With ``on_stall="end"`` (default) the environment then
-ends the episode (truncated, ``reference_stall``): a blocked drone ends its mission with the stall on
-record, not at the time limit. With ``on_stall="skip"`` the point moves on at the nominal speed
-whatever the drone does until the drone is back within ``lag_threshold`` (or the run ends), the path
-length so skipped summed (:attr:`BatchedReference.skipped`); not the default because a point that
-runs on pulls an MPC that is stuck against the structure harder into it.
+counted (:attr:`BatchedReference.stalls`). With ``on_stall="skip"`` (default) the point moves on at
+the nominal speed whatever the drone does until the drone is back within ``lag_threshold`` (or the
+run ends), the path length so skipped summed (:attr:`BatchedReference.skipped`): the mission goes on
+past a pose the drone cannot take, and the coverage it cost shows in the metrics. Moving on is safe
+for the MPCs because their clearance constraint, not the reference, keeps them off the structure.
+With ``on_stall="end"`` the environment ends the episode there instead (truncated,
+``reference_stall``), the stall on record.
 
 Approach from a far start
 -------------------------
@@ -107,7 +108,7 @@ class ReferenceConfig:
     limit_standoff_speed: bool = True
     phase_hold_time: float | None = 5.0
     stall_time: float | None = 20.0
-    on_stall: str = "end"
+    on_stall: str = "skip"
     approach_speed: float | None = None
 
     def __post_init__(self) -> None:

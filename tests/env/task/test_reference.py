@@ -285,9 +285,9 @@ def test_a_blocked_drone_stalls_and_the_reference_moves_on_to_the_end():
     assert ref.stalls == 0 and ref.skipped == 0.0
 
 
-def test_by_default_a_stall_is_counted_once_and_the_point_stays():
+def test_with_on_stall_end_a_stall_is_counted_once_and_the_point_stays():
     pts, nrm, s, ph = straight_path(10.0)
-    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=5.0))   # on_stall="end"
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(stall_time=5.0, on_stall="end"))
     drone = ref.reset().ideal_position.copy()
     flags = [ref.step(DT, drone).stalled for _ in range(1500)]
     out = ref.step(DT, drone)

@@ -314,20 +314,11 @@ def test_reference_thresholds_scale_with_the_standoff():
 
 def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
     """The closed-loop reference does not wait for ever: a hovering drone (still air) lets it run
-    2 m ahead and wait ``reference_stall_time``; by default the episode then ends (truncated, not
-    complete), with ``reference_on_stall="skip"`` the point moves on to the end without the drone -
-    the mission ends (mission_complete) well before the time limit, with the stall on record."""
+    2 m ahead and wait ``reference_stall_time``; by default (``reference_on_stall="skip"``) the
+    point then moves on to the end without the drone - the mission ends (mission_complete) well
+    before the time limit, with the stall on record; with ``"end"`` the episode ends at the stall
+    (truncated, not complete)."""
     env = make(wind="none", reference_stall_time=3.0)
-    env.reset(seed=0)
-    hover = env.unwrapped.scaling.hover_action()
-    for _ in range(2000):
-        _, _, term, trunc, info = env.step(hover)
-        if term or trunc:
-            break
-    assert trunc and not term and not info["mission_complete"] and info["stalls"] == 1
-    assert info["time"] == pytest.approx(3.0 + 2.0 / 0.7, abs=1.5)    # ~2 m ahead, then 3 s without progress
-    env.close()
-    env = make(wind="none", reference_stall_time=3.0, reference_on_stall="skip")
     u = env.unwrapped
     env.reset(seed=0)
     hover = u.scaling.hover_action()
@@ -337,6 +328,16 @@ def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
     assert trunc and not term and info["mission_complete"]      # a completed mission truncates
     assert info["stalls"] >= 1 and info["skipped_m"] > 0.5 * u.world.reference.total_length
     assert info["time"] < 0.6 * u.world.time_limit        # the nominal time plus the stall, not the limit
+    env.close()
+    env = make(wind="none", reference_stall_time=3.0, reference_on_stall="end")
+    env.reset(seed=0)
+    hover = env.unwrapped.scaling.hover_action()
+    for _ in range(2000):
+        _, _, term, trunc, info = env.step(hover)
+        if term or trunc:
+            break
+    assert trunc and not term and not info["mission_complete"] and info["stalls"] == 1
+    assert info["time"] == pytest.approx(3.0 + 2.0 / 0.7, abs=1.5)    # ~2 m ahead, then 3 s without progress
     env.close()
     env = make(wind="none", reference_stall_time=3.0, reference_on_stall="skip")
     env.reset(seed=0)
