@@ -47,13 +47,20 @@ constraint with ``half_spaces=2``, both relaxed by the one slack):
    room; the first half-space pushes out). Replacing the first half-space by it instead (tried)
    lets wind drift a slow drone into the nearest surface.
 
-Wind. Near a turbine the wind pushes the drone into the structure, and a model without it brakes
-too late. The filter runs the disturbance observer of the MPC base (``disturbance_observer``, on by
-default here: :meth:`~controllers.rti_policy.RTIPolicy.on_measurement`), feeds its world-frame
+Wind and drag. Near a turbine the wind pushes the drone into the structure, and a model without it
+brakes too late. The filter runs the disturbance observer of the MPC base (``disturbance_observer``,
+on by default here: :meth:`~controllers.rti_policy.RTIPolicy.on_measurement`), feeds its world-frame
 estimate a_ext to its model, and its clearance constraint takes the part of a_ext that pushes
 towards each half-space's boundary off the braking deceleration (down to a quarter of
 ``clearance_brake``) and adds it to the acceleration of the reaction time
-(:func:`controllers.rti_policy.clearance_ocp` with ``disturbance``).
+(:func:`controllers.rti_policy.clearance_ocp` with ``disturbance``). Two choices keep that estimate
+the wind's and not the manoeuvre's: the model has the airframe's linear rotor drag (``model_drag``:
+-D/m v_B, ground-relative; the wind's share D/m R^T w is then a steady push the observer sees), and
+the observer compares the measured acceleration with the model's at the *measured* attitude
+(``observer_model="attitude"``). Without them a policy flying hard at the structure made the
+observer read the drag of the drone's own speed as a push of up to 0.4 g towards the structure, and
+the filter, believing it, had its QP fail as it braked (the adversarial study's worst flights before
+the change).
 
 Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
 see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
@@ -152,9 +159,18 @@ class SafetyFilterConfig(MPCConfig):
     # the wind a drone meets near a turbine pushes it into the structure: the filter's model and
     # its stopping distances take the observer's estimate into account (module docstring)
     disturbance_observer: bool = True
+    # the observer compares the measurement with the model at the measured attitude: it needs no
+    # plan, so it reads alike whether the QP solved, failed or was passed (RTIPolicy.on_measurement)
+    observer_model: str = "attitude"
+    # the airframe's linear rotor drag in the model: a drone flying at the structure is slowed by
+    # it, and without it the observer takes the drag of the flight's own speed for a push that
+    # changes as the drone brakes (module docstring)
+    model_drag: bool = True
 
     def __post_init__(self) -> None:
         super().__post_init__()
+        if not isinstance(self.model_drag, bool):
+            raise ValueError(f"model_drag must be a bool, got {self.model_drag!r}")
         if not isinstance(self.pass_through, bool):
             raise ValueError(f"pass_through must be a bool, got {self.pass_through!r}")
         m = self.pass_through_margin
@@ -184,6 +200,13 @@ def brake_command(state: np.ndarray, config: SafetyFilterConfig) -> np.ndarray:
                    config.scaling.lower, config.scaling.upper)
 
 
+def linear_drag(config: SafetyFilterConfig) -> np.ndarray | None:
+    """The model's linear body drag per unit mass [1/s] per body axis (None with ``model_drag`` off)."""
+    if not config.model_drag:
+        return None
+    return np.asarray(config.params.drag_coefficients[0], dtype=np.float64) / config.params.mass
+
+
 def build_ocp(config: SafetyFilterConfig) -> OCP:
     """The filter's least-squares OCP (see the module docstring); parameters [u_policy (4), first,
     a_ext (3)] with ``first`` 1 at stage 0 and 0 after and a_ext the observer's disturbance
@@ -199,7 +222,8 @@ def build_ocp(config: SafetyFilterConfig) -> OCP:
     terminal = ca.Function("safety_filter_rN", [x, p], [quat_to_rotmat(x[6:10]) @ x[3:6]], ["x", "p"], ["rN"])
     model = QuadrotorModel(config.params)
     dynamics = ca.Function("safety_filter_F", [x, u, p],
-                           [model.rk4_expr(x, u, config.dt, a_ext=p[A_EXT], steps=config.rk4_steps)],
+                           [model.rk4_expr(x, u, config.dt, a_ext=p[A_EXT], steps=config.rk4_steps,
+                                           drag=linear_drag(config))],
                            ["x", "u", "p"], ["x_next"])
     return config_ocp("safety_filter", config, dynamics, stage, terminal)
 
@@ -238,6 +262,13 @@ class FilterMPC(RTIPolicy):
         step, and the observer's disturbance estimate)."""
         self._params[:, A_EXT] = self._a_hat
         return self._params
+
+    def model_acceleration(self, state: np.ndarray) -> np.ndarray:
+        """The model's drag acceleration (world frame) at ``state`` (zero with ``model_drag`` off)."""
+        drag = linear_drag(self.config)
+        if drag is None:
+            return np.zeros(3)
+        return quat_to_rotmat_np(state[6:10]) @ (-drag * state[3:6])
 
     def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Two half-spaces per looked-up stage (see the module docstring): the tightest of the

@@ -56,6 +56,10 @@ def _default_params() -> QuadrotorParams:
     return get_preset("matrice100")
 
 
+#: what the disturbance observer compares a measured velocity with (MPCConfig.observer_model)
+OBSERVER_MODELS = ("prediction", "attitude")
+
+
 @dataclass(frozen=True)
 class MPCConfig:
     """What every MPC instance has (clearance fields: see the module docstring - ``d_min`` [m],
@@ -89,7 +93,9 @@ class MPCConfig:
     default) estimates a world-frame disturbance acceleration from the gap between measured and
     predicted velocity (first-order filter, ``observer_time_constant`` [s], bounded by
     ``observer_max_accel`` [m/s^2], below g) for a subclass's model (VT-NMPC, the safety filter:
-    :meth:`RTIPolicy.on_measurement`)."""
+    :meth:`RTIPolicy.on_measurement`); ``observer_model`` says what the measurement is compared
+    with: ``"prediction"`` the plan's predicted velocity, ``"attitude"`` the acceleration the model
+    gives for the *measured* attitudes and the applied thrust (see :meth:`RTIPolicy.on_measurement`)."""
 
     WEIGHTS: ClassVar[type] = LSQWeights
     WEIGHT_SETS: ClassVar[Mapping[str, Any]] = {}
@@ -118,6 +124,7 @@ class MPCConfig:
     disturbance_observer: bool = False
     observer_time_constant: float = 0.3
     observer_max_accel: float = 0.8 * GRAVITY
+    observer_model: str = "prediction"
 
     def __post_init__(self) -> None:
         check_field_types(self, "")
@@ -177,6 +184,8 @@ class MPCConfig:
             raise ValueError(f"disturbance_observer needs control_dt >= dt (it compares the measurement "
                              f"with the plan's next stage), got control_dt={self.control_dt!r}, dt={self.dt!r}")
         check_positive("observer_time_constant", self.observer_time_constant)
+        if self.observer_model not in OBSERVER_MODELS:
+            raise ValueError(f"observer_model must be one of {list(OBSERVER_MODELS)}, got {self.observer_model!r}")
         check_positive("observer_max_accel", self.observer_max_accel)
         if self.observer_max_accel >= GRAVITY:
             raise ValueError(f"observer_max_accel must be below g = {GRAVITY} m/s^2 (the tilted hover "

@@ -11,10 +11,13 @@ authors' code notes):
     v_B_dot = -omega x v_B + R(q)^T (g_W + a_ext_W) + [0, 0, T / m]
     q_dot = 1/2 q (x) (omega, 0)
 
-where g_W = [0, 0, -g] and ``a_ext_W`` an optional world-frame disturbance acceleration (e.g. a
-drag estimate). The quaternion algebra is written with small helpers (product, rotation matrix)
-rather than expanded by hand. Every MPC uses :class:`QuadrotorModel`; a NumPy evaluation and an RK4
-discretisation come from the same expressions.
+where g_W = [0, 0, -g] and ``a_ext_W`` an optional world-frame disturbance acceleration (e.g. a drag
+estimate). An optional linear drag per unit mass ``drag`` [1/s] per body axis adds ``- drag * v_B``
+to v_B_dot (the rotor drag's ground-relative part; the wind's part, ``drag * R^T w``, is a
+world-frame push an observer can estimate as a_ext). The quaternion algebra is written with small
+helpers (product, rotation matrix) rather than expanded by hand. Every MPC uses
+:class:`QuadrotorModel`; a NumPy evaluation and an RK4 discretisation come from the same
+expressions.
 """
 from __future__ import annotations
 
@@ -97,8 +100,9 @@ class QuadrotorModel:
 
     params: QuadrotorParams = field(default_factory=QuadrotorParams)
 
-    def continuous_expr(self, x, u, a_ext=None):
-        """Symbolic x_dot for symbolic (or numeric) x, u and optional world accel ``a_ext``."""
+    def continuous_expr(self, x, u, a_ext=None, drag=None):
+        """Symbolic x_dot for symbolic (or numeric) x, u, optional world accel ``a_ext`` and
+        optional linear body drag per unit mass ``drag`` (3,) [1/s] (module docstring)."""
         vel_b = x[3:6]
         q = x[6:10]
         omega = u[0:3]
@@ -109,6 +113,8 @@ class QuadrotorModel:
             g_w = g_w + a_ext
         p_dot = R @ vel_b
         v_dot = -ca.cross(omega, vel_b) + R.T @ g_w + ca.vertcat(0, 0, thrust / self.params.mass)
+        if drag is not None:
+            v_dot = v_dot - ca.DM(drag) * vel_b
         q_dot = 0.5 * quat_product(q, ca.vertcat(omega, 0))
         return ca.vertcat(p_dot, v_dot, q_dot)
 
@@ -128,14 +134,14 @@ class QuadrotorModel:
         return ca.Function("quad_f_ext", [x, u, a], [self.continuous_expr(x, u, a)],
                            ["x", "u", "a_ext"], ["xdot"])
 
-    def rk4_expr(self, x, u, dt: float, a_ext=None, steps: int = 1):
+    def rk4_expr(self, x, u, dt: float, a_ext=None, steps: int = 1, drag=None):
         """Symbolic RK4 step(s) of length ``dt`` (split into ``steps`` sub-steps)."""
         h = dt / steps
         for _ in range(steps):
-            k1 = self.continuous_expr(x, u, a_ext)
-            k2 = self.continuous_expr(x + h / 2 * k1, u, a_ext)
-            k3 = self.continuous_expr(x + h / 2 * k2, u, a_ext)
-            k4 = self.continuous_expr(x + h * k3, u, a_ext)
+            k1 = self.continuous_expr(x, u, a_ext, drag)
+            k2 = self.continuous_expr(x + h / 2 * k1, u, a_ext, drag)
+            k3 = self.continuous_expr(x + h / 2 * k2, u, a_ext, drag)
+            k4 = self.continuous_expr(x + h * k3, u, a_ext, drag)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         return x
 
