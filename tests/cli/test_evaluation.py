@@ -13,6 +13,7 @@ import time
 import types
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -364,4 +365,12 @@ def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
     ctx = ReportContext(scenario="surface")
     text = markdown([res], ctx)
     assert "## Reference stalls" in text and text.count("| skipped |") == len(res.stall_log)
+    # a stall that only the time limit's schedule finds: the point paces to the end, recorded as such
+    probe = gym.make("WindTurbineInspection-v0", **env_options("surface", 0.0))
+    nominal = probe.unwrapped.world.reference.ref.nominal_duration
+    probe.close()
+    res = evaluate_policy(lambda env: Hover(env), scenario="surface", wind=0.0, record=False,
+                          env_overrides={"reference_stall_time": 1e4, "time_limit_s": nominal + 13.0})
+    assert res.mission_complete and [e["action"] for e in res.stall_log] == ["paced"]
+    assert res.stall_log[0]["why"].startswith("behind the schedule")
     assert {"stalls", "skipped_path_m"} <= set(CSV_COLUMNS)

@@ -235,9 +235,11 @@ def _stall_lines(results: Sequence[RunResult]) -> list[str]:
         return []
     lines = ["", "## Reference stalls", "",
              "The closed-loop reference made no progress for `reference_stall_time` while the drone was held "
-             "off its stand-off pose; `skipped`: it moved on along the path without the drone until the drone "
-             "was back on its pose (the run's skipped path and its coverage show what the stall cost), `ended`: "
-             "the episode ended there (`reference_on_stall=\"end\"`).", "",
+             "off its stand-off pose, or fell behind its time limit's schedule; `skipped`: it moved on along "
+             "the path without the drone until the drone was back on its pose (the run's skipped path and its coverage show what the stall cost), `paced`: "
+             "the point had fallen so far behind that only the nominal speed from there ended the mission by its "
+             "time limit, and it kept that speed to the end; `ended`: the episode ended there "
+             "(`reference_on_stall=\"end\"`).", "",
              "| controller | wind | seed | time | mission progress | phase | drone to pose | clearance | why "
              "| then | path skipped (run) | coverage (run) |",
              "|---|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---:|"]

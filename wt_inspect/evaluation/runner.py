@@ -67,6 +67,7 @@ import numpy as np
 
 import wt_inspect_env  # noqa: F401 - registers the environment ids
 from wt_inspect_env.task.geometry import camera_heading, heading_and_distance
+from wt_inspect_env.task.reference import PACING
 from wt_inspect_env.util.atomic_io import atomic_path
 
 from . import registry
@@ -476,7 +477,9 @@ STALL_AT_CLEARANCE_M = 0.3
 
 def _stall_event(env: Any, info: Mapping[str, Any], step: int) -> dict[str, Any]:
     """What the run records when the reference stalls: when, where along the mission, how far the
-    drone was from its stand-off pose and what the reference then did (the step index is resolved
+    drone was from its stand-off pose and what the reference then did (``skipped``: on until the
+    drone is back on its pose; ``paced``: at the nominal speed to the end, having fallen behind the
+    time limit's schedule; ``ended``) (the step index is resolved
     to the drone's clearance once the run's clearance is computed, see :func:`_stall_why`)."""
     ref = env.world.reference
     pos = _position_and_thrusts(env.sim)[0]
@@ -484,7 +487,8 @@ def _stall_event(env: Any, info: Mapping[str, Any], step: int) -> dict[str, Any]
             "phase": int(info["phase"]),
             "distance_to_pose_m": float(np.linalg.norm(np.asarray(info["ideal_position"]) - pos)),
             "wind_m_s": float(np.linalg.norm(info["wind"])),
-            "action": "skipped" if env.config.reference_on_stall == "skip" else "ended", "_step": step}
+            "action": ("paced" if int(ref.skipping[0]) == PACING else
+                       "skipped" if env.config.reference_on_stall == "skip" else "ended"), "_step": step}
 
 
 def _stall_why(event: dict[str, Any], clearance: np.ndarray, d_min: float) -> dict[str, Any]:
@@ -492,7 +496,8 @@ def _stall_why(event: dict[str, Any], clearance: np.ndarray, d_min: float) -> di
     e = dict(event)
     c = float(clearance[e.pop("_step")])
     e["clearance_m"] = c
-    e["why"] = ("held at d_min by the clearance constraint" if c <= d_min + STALL_AT_CLEARANCE_M
+    e["why"] = ("behind the schedule that ends the mission by its time limit" if e["action"] == "paced" else
+                "held at d_min by the clearance constraint" if c <= d_min + STALL_AT_CLEARANCE_M
                 else "held off its pose (wind or the controller)")
     return e
 

@@ -36,12 +36,17 @@ typedef struct {
     double lag_threshold, stall_time;   /* stall_time NaN: no stall detection */
     int64_t stall_skip;          /* on a stall: 1 move on without the drone, 0 end the episode (the world) */
     double approach_speed;       /* speed of the approach from a far start [m/s] */
+    double deadline;             /* with stall_skip: the time by which the point must reach the path's end (NaN: none) */
 } RefPath;
 
 /* A drone counts as stalled while its point advances at less than this share of the nominal speed. */
 /* Vertices of an approach route at most (start, two detour via points, the first pose). */
 #define APPROACH_MAX 4
 #define STALL_SIGMA 0.1
+/* skipping: 0 following the drone, SKIPPING moving on after a stall until the drone is back on its pose,
+ * PACING at the nominal speed to the end, the point having fallen behind the schedule that meets the deadline */
+#define SKIPPING 1
+#define PACING 2
 
 typedef struct {
     /* per-drone reference state */
@@ -159,7 +164,22 @@ void wt_ref_sample(const RefPath *P, RefState *S, int64_t m, const int64_t *idx)
  * point makes no progress (sigma < STALL_SIGMA) for stall_time seconds stalls, and the stall is counted;
  * with stall_skip its point then moves at the nominal speed, whatever the drone does, until the drone is
  * back within lag_threshold of the ideal pose (or the run ends), the tau so skipped summed; without, the
- * world ends the episode. */
+ * world ends the episode. With stall_skip and a deadline, a drone whose point has fallen so far behind that
+ * only the nominal speed from here reaches the path's end by the deadline stalls too, and its point then
+ * keeps the nominal speed to the end (PACING): the mission ends by the deadline, never at the time limit
+ * because the point waited. */
+/* Seconds the point needs from drone i's present place to the path's end at the nominal speeds (the rest
+ * of the approach, of its run and the runs after) plus the phase-change holds still to come. */
+static double ref_time_to_go(const RefPath *P, const RefState *S, int64_t i) {
+    double tau = S->tau[i], t = 0.0;
+    int64_t run = S->run[i];
+    if (tau < 0.0) { t += -tau / P->approach_speed; tau = 0.0; }
+    t += (P->run_length[run] - tau) / P->speed;
+    for (int64_t r = run + 1; r < P->n_runs; ++r) t += P->run_length[r] / P->speed;
+    if (!isnan(P->hold_limit)) t += P->hold_limit * (double)(P->n_runs - 1 - run);
+    return t;
+}
+
 static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, const double *x) {
     const double *q = S->ideal + 3 * i;
     double d0 = x[0] - q[0], d1 = x[1] - q[1], d2 = x[2] - q[2];
@@ -178,13 +198,24 @@ static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, co
             pc = 1;
         }
     } else if (!S->holding[i] && !S->done[i]) {
-        double sm = 1.0;
+        double sm = 1.0, e = 0.0;
         if (P->closed) {
-            double e = lag - S->deficit[i];
+            e = lag - S->deficit[i];
             if (e < 0.0) e = 0.0;
             sm = sqrt(np_min(1.0, np_max(0.0, (P->stop - e) * P->inv_band)));
             if (!isnan(P->stall_time) && (P->stall_skip || S->stalls[i] == 0)) {   /* "end": one stall ends it */
-                if (S->skipping[i]) {
+                if (S->skipping[i] == PACING) {
+                    sm = 1.0;
+                } else if (P->stall_skip && !isnan(P->deadline)
+                           && S->time[i] + ref_time_to_go(P, S, i) >= P->deadline - 1e-12) {
+                    /* so far behind that only the nominal speed from here ends the path by the deadline: a
+                     * stall, and the point keeps that speed to the end whatever the drone does */
+                    S->stalls[i] += 1;
+                    S->stalled_for[i] = 0.0;
+                    st = 1;
+                    S->skipping[i] = PACING;
+                    sm = 1.0;
+                } else if (S->skipping[i]) {
                     if (e <= P->lag_threshold) S->skipping[i] = 0;
                     else sm = 1.0;
                 } else {
@@ -193,7 +224,7 @@ static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, co
                         S->stalls[i] += 1;
                         S->stalled_for[i] = 0.0;
                         st = 1;
-                        if (P->stall_skip) { S->skipping[i] = 1; sm = 1.0; }
+                        if (P->stall_skip) { S->skipping[i] = SKIPPING; sm = 1.0; }
                     }
                 }
             }
@@ -217,8 +248,13 @@ static void ref_step_one(const RefPath *P, RefState *S, int64_t i, double dt, co
                 hs = 1;
             }
         }
-        if (S->skipping[i]) S->skipped[i] += S->tau[i] - tau0;
-        if (hs || S->done[i]) { S->skipping[i] = 0; S->stalled_for[i] = 0.0; }
+        /* path the point passes without the drone: all of a skip, the part of pacing the drone lags on */
+        if (S->skipping[i] == SKIPPING || (S->skipping[i] == PACING && e > P->lag_threshold))
+            S->skipped[i] += S->tau[i] - tau0;
+        if (hs || S->done[i]) {
+            if (S->skipping[i] != PACING || S->done[i]) S->skipping[i] = 0;   /* pacing holds to the end */
+            S->stalled_for[i] = 0.0;
+        }
     }
     ref_sample(P, S, i, sigma, hs, pc, lag, st);
 }

@@ -40,7 +40,7 @@ class RefPath(ctypes.Structure):
                 ("run_phase", _P), ("tau", _P), ("dtau", _P), ("geom", _P), ("dp_dtau", _P), ("normals", _P),
                 ("hdir", _P), ("total_length", _D), ("speed", _D), ("stop", _D), ("inv_band", _D),
                 ("standoff", _D), ("hold_limit", _D), ("closed", _I), ("reach", _P), ("lag_threshold", _D),
-                ("stall_time", _D), ("stall_skip", _I), ("approach_speed", _D)]
+                ("stall_time", _D), ("stall_skip", _I), ("approach_speed", _D), ("deadline", _D)]
 
 
 class RefState(ctypes.Structure):

@@ -146,7 +146,9 @@ class EnvConfig:
     reference_stall_time / reference_on_stall: seconds without progress after which the closed-loop
         reference stalls (``None``: never), and what then: ``"skip"`` (default) on without the drone
         until it is back on its pose, the path skipped in ``info["skipped_m"]`` (see :mod:`.reference`),
-        or ``"end"`` the episode (truncated; the harness records ``reference_stall``).
+        or ``"end"`` the episode (truncated; the harness records ``reference_stall``). With
+        ``"skip"``, a mission whose nominal time fits in its time limit also ends by it: a point
+        that falls too far behind keeps the nominal speed to the end (one more stall).
     reference_approach_speed: from a start farther than ``reference_stop`` from the first stand-off
         pose, the reference first approaches from the start at this speed [m/s] (see
         :mod:`.reference`); ``"auto"`` (default): the braking bound sqrt(2 a (standoff - d_min)),

@@ -35,6 +35,13 @@ for the MPCs because their clearance constraint, not the reference, keeps them o
 With ``on_stall="end"`` the environment ends the episode there instead (truncated,
 ``reference_stall``), the stall on record.
 
+A drone held 1-2 m off its poses (a controller that cannot hold against the wind) keeps its point
+moving, slowly: no stall, and the mission would end at the time limit. So with ``on_stall="skip"``
+the environment also gives the reference a *deadline* (:meth:`BatchedReference.set_deadline`: its
+time limit less the end hold, when the nominal mission fits in it): a point so far behind that only
+the nominal speed from its place reaches the path's end by then stalls too (counted once) and keeps
+that speed to the end (*pacing*); the path it passes while the drone lags counts as skipped.
+
 Approach from a far start
 -------------------------
 A drone that starts farther than ``stop_threshold`` from the path's first stand-off pose would
@@ -338,6 +345,15 @@ class InspectionReference:
         """Path (tau) length the point moved on without the drone since the reset [m]."""
         return float(self._batch.skipped[0])
 
+    @property
+    def pacing(self) -> bool:
+        """The point fell behind the deadline's schedule and keeps the nominal speed to the end."""
+        return bool(self._batch.skipping[0] == PACING)
+
+    def set_deadline(self, deadline: float | None) -> None:
+        """See :meth:`BatchedReference.set_deadline`."""
+        self._batch.set_deadline(deadline)
+
 
 # ------------------------------------------------------------------------------------------ batched
 # The inspection reference for N drones at once: :class:`BatchedReference` advances N independent
@@ -367,6 +383,11 @@ class BatchedSample:
     time: np.ndarray             # (N,) time since reset [s]
     stalled: np.ndarray          # (N,) bool: first sample of a stall
     deficit: np.ndarray          # (N,) clearance shortfall of the ideal pose (reach at this sample) [m]
+
+
+#: :attr:`BatchedReference.skipping` values: moving on after a stall until the drone is back on its
+#: pose; at the nominal speed to the end after falling behind the deadline (mirrors world_core.c)
+SKIPPING, PACING = 1, 2
 
 
 class BatchedReference:
@@ -412,12 +433,15 @@ class BatchedReference:
         path.stall_time = math.nan if cfg.stall_time is None else cfg.stall_time
         path.stall_skip = int(cfg.on_stall == "skip")
         path.approach_speed = math.nan if cfg.approach_speed is None else cfg.approach_speed
+        path.deadline = math.nan
         self.approach_len = np.zeros(n)
         self.approach_pts = np.zeros((n, APPROACH_MAX, 3))
         self.approach_nv = np.zeros(n, dtype=np.int64)
         self.run = np.zeros(n, dtype=np.int64)
         self.tau, self.time, self.hold_elapsed = np.zeros(n), np.zeros(n), np.zeros(n)
-        self.holding, self.done, self.release, self.skipping = (np.zeros(n, dtype=bool) for _ in range(4))
+        self.holding, self.done, self.release = (np.zeros(n, dtype=bool) for _ in range(3))
+        # 0 following the drone, SKIPPING after a stall, PACING to the end after falling behind the deadline
+        self.skipping = np.zeros(n, dtype=np.uint8)
         self.stalled_for, self.skipped = np.zeros(n), np.zeros(n)
         self.stalls = np.zeros(n, dtype=np.int64)
         self.ideal = np.zeros((n, 3))
@@ -471,7 +495,7 @@ class BatchedReference:
         self.hold_elapsed[i] = 0.0
         self.done[i] = False
         self.release[i] = False
-        self.skipping[i] = False
+        self.skipping[i] = 0
         self.stalled_for[i] = 0.0
         self.stalls[i] = 0
         self.skipped[i] = 0.0
@@ -510,6 +534,20 @@ class BatchedReference:
     def approaching(self) -> np.ndarray:
         """(N,) bool: the drones whose point is still on its approach."""
         return self.tau < 0.0
+
+    def set_deadline(self, deadline: float | None) -> None:
+        """The simulated time [s] by which every point must reach the path's end (None: none).
+        With ``on_stall="skip"`` and stall detection on, a point so far behind that only the
+        nominal speed from its place (approach, runs and phase holds to come) reaches the end by
+        then stalls, and keeps that speed to the end whatever its drone does (:attr:`skipping`
+        :data:`PACING`; the path it passes while the drone lags is counted in :attr:`skipped`).
+        The environment sets its time limit less the end hold, so that a mission ends by its
+        time limit with what the drone covered, never at the limit because the point waited."""
+        if deadline is None:
+            self._path.deadline = math.nan
+            return
+        check_positive("reference deadline", deadline)
+        self._path.deadline = float(deadline)
 
     def release_hold(self, i: int) -> None:
         """End drone ``i``'s phase-change hold at its next step (needed when ``phase_hold_time`` is None)."""

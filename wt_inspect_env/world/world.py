@@ -88,6 +88,10 @@ class StepResult:
     finite: np.ndarray
 
 
+#: the closed-loop reference's points reach the path's end this long [s] before the time limit less
+#: the end hold at the latest (see BatchedReference.set_deadline)
+DEADLINE_MARGIN_S = 1.0
+
 class InspectionWorld:
     """N inspection drones on one planned mission (see the module docstring).
 
@@ -136,6 +140,12 @@ class InspectionWorld:
         self.reference = BatchedReference(ref, n)
         self._router = None
         self.time_limit = cfg.time_limit_s or (1.5 * ref.nominal_duration + 30.0)
+        # a mission that fits its time limit ends by it: a point that falls too far behind keeps
+        # the nominal speed to the end (BatchedReference.set_deadline); a time limit shorter than
+        # the mission (RL training episodes) is a truncation, not a deadline
+        deadline = self.time_limit - cfg.end_hold_s - DEADLINE_MARGIN_S
+        if cfg.reference_on_stall == "skip" and deadline >= ref.nominal_duration:
+            self.reference.set_deadline(deadline)
         lo, hi = mission.working_volume(cfg.working_margin)
         self._vol_base = (lo, hi)
         self.volume_lo, self.volume_hi = np.tile(lo, (n, 1)), np.tile(hi, (n, 1))   # per drone: its start

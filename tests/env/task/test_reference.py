@@ -471,3 +471,48 @@ def test_the_approach_follows_a_routed_polyline_at_its_speed():
     ref.reset()
     with pytest.raises(ValueError, match="approach route"):
         ref.approach(start, lambda a, b: np.stack([a, a + 1.0]))     # does not end at the first pose
+
+
+def _lagging_drone_run(deadline):
+    """A drone that trails its ideal pose by 1.5 m (between the lag and stop thresholds: the point
+    moves at sqrt(0.5) of the nominal speed) along a 10 m path at 0.7 m/s (14.3 s nominal)."""
+    pts, nrm, s, ph = straight_path(10.0)
+    cfg = ReferenceConfig(speed=0.7, lag_threshold=1.0, stop_threshold=2.0, stall_time=5.0, on_stall="skip")
+    ref = InspectionReference(pts, nrm, s, ph, cfg)
+    ref.set_deadline(deadline)
+    out = ref.reset()
+    paced_at, pacing = None, False
+    for _ in range(5000):
+        out = ref.step(DT, out.ideal_position + np.array([0.0, 0.0, 1.5]))
+        if out.stalled:
+            paced_at = out.time
+        pacing |= ref.pacing
+        if out.done:
+            break
+    return ref, out, paced_at if pacing else None
+
+
+def test_a_point_behind_the_deadline_keeps_the_nominal_speed_to_the_end():
+    """Without a deadline the trailing drone's point takes 10 / (0.7 sqrt(0.5)) = 20.2 s and never
+    stalls (it moves); with a 16 s deadline it stalls once when the rest of the path at 0.7 m/s
+    just fits, then keeps that speed and reaches the end by the deadline, the path passed while
+    the drone trailed counted as skipped."""
+    ref, out, paced_at = _lagging_drone_run(None)
+    assert out.done and ref.stalls == 0 and paced_at is None and ref.skipped == 0.0
+    assert out.time == pytest.approx(10.0 / (0.7 * math.sqrt(0.5)), abs=0.2)
+    ref, out, paced_at = _lagging_drone_run(16.0)
+    assert out.done and ref.stalls == 1 and paced_at is not None
+    assert out.time <= 16.0 + 2 * DT and out.time == pytest.approx(16.0, abs=0.05)
+    # behind from the moment the rest at full speed just fits: t + (10 - s) / 0.7 = 16
+    s_paced = 0.7 * math.sqrt(0.5) * paced_at
+    assert paced_at + (10.0 - s_paced) / 0.7 == pytest.approx(16.0, abs=0.05)
+    assert ref.skipped == pytest.approx(10.0 - s_paced, abs=0.05)
+    ref.reset()
+    assert ref.stalls == 0 and not ref.pacing
+
+
+def test_a_deadline_must_be_positive():
+    pts, nrm, s, ph = straight_path(10.0)
+    ref = InspectionReference(pts, nrm, s, ph, ReferenceConfig(on_stall="skip"))
+    with pytest.raises(ValueError, match="deadline"):
+        ref.set_deadline(-1.0)

@@ -312,6 +312,36 @@ def test_reference_thresholds_scale_with_the_standoff():
     env.close()
 
 
+def test_a_mission_that_falls_behind_ends_by_its_time_limit():
+    """A hovering drone, stalls only after 10,000 s without progress, and a time limit 10 s over
+    the nominal mission (+ the end hold and the deadline margin): the point waits 2 m ahead until
+    only the nominal speed from there reaches the end by the deadline, then keeps that speed - one
+    stall, the mission completes before the time limit, nearly all of its path passed without
+    the drone. A time limit shorter than the mission (an RL training episode) sets no deadline."""
+    from wt_inspect_env.world.world import DEADLINE_MARGIN_S
+    env = make(wind="none")
+    nominal = env.unwrapped.world.reference.ref.nominal_duration
+    env.close()
+    limit = nominal + 2.0 + DEADLINE_MARGIN_S + 10.0
+    env = make(wind="none", reference_stall_time=1e4, time_limit_s=limit)
+    u = env.unwrapped
+    env.reset(seed=0)
+    hover = u.scaling.hover_action()
+    info, term, trunc = {}, False, False
+    while not (term or trunc):
+        _, _, term, trunc, info = env.step(hover)
+    assert trunc and not term and info["mission_complete"] and info["stalls"] == 1
+    assert info["time"] < limit - 0.5
+    assert info["skipped_m"] > 0.9 * u.world.reference.total_length
+    env.close()
+    env = make(wind="none", reference_stall_time=1e4, time_limit_s=30.0)
+    env.reset(seed=0)
+    for _ in range(int(29.0 / env.unwrapped.dt)):
+        _, _, _, _, info = env.step(hover)
+    assert info["stalls"] == 0 and not env.unwrapped.world.reference.skipping.any()
+    env.close()
+
+
 def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
     """The closed-loop reference does not wait for ever: a hovering drone (still air) lets it run
     2 m ahead and wait ``reference_stall_time``; by default (``reference_on_stall="skip"``) the
