@@ -236,7 +236,8 @@ def _stall_lines(results: Sequence[RunResult]) -> list[str]:
     lines = ["", "## Reference stalls", "",
              "The closed-loop reference made no progress for `reference_stall_time` while the drone was held "
              "off its stand-off pose, or fell behind its time limit's schedule; `skipped`: it moved on along "
-             "the path without the drone until the drone was back on its pose (the run's skipped path and its coverage show what the stall cost), `paced`: "
+             "the path without the drone until the drone was back on its pose (the run's skipped path and its "
+             "coverage show what the stall cost), `paced`: "
              "the point had fallen so far behind that only the nominal speed from there ended the mission by its "
              "time limit, and it kept that speed to the end; `ended`: the episode ended there "
              "(`reference_on_stall=\"end\"`).", "",
