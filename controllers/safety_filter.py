@@ -63,9 +63,10 @@ the filter, believing it, had its QP fail as it braked (the adversarial study's 
 the change).
 
 Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
-see a second surface in a concave corner (the hub between blade roots), and a drone drifting in
-strong wind while a policy pulls it down can be held only just above the ground; both show as
-flights that dip below d_min without colliding.
+see a second surface in a concave corner (the hub between blade roots), and in strong turbulence
+the observer's estimate lags the gusts by its time constant, so a policy that pulls towards the
+structure can be pushed a little inside d_min; both show as flights that dip below d_min without
+colliding.
 
 When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan);
 once that is used up, the filter levels the drone and brakes (:func:`brake_command`) where the
