@@ -243,6 +243,7 @@ class FilterMPC(RTIPolicy):
                              "(a TurbineProximity or env.mission)")
         super().__init__(config, obstacles=obstacles, **overrides)
         cfg = self.config
+        self._drag = linear_drag(cfg)      # the model's, for the observer (model_acceleration)
         self._params = np.zeros((cfg.horizon + 1, N_PARAMS))
         self._params[:, :NU] = cfg.hover_input
         self._params[0, NU] = 1.0
@@ -264,12 +265,11 @@ class FilterMPC(RTIPolicy):
         self._params[:, A_EXT] = self._a_hat
         return self._params
 
-    def model_acceleration(self, state: np.ndarray) -> np.ndarray:
+    def model_acceleration(self, state: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """The model's drag acceleration (world frame) at ``state`` (zero with ``model_drag`` off)."""
-        drag = linear_drag(self.config)
-        if drag is None:
+        if self._drag is None:
             return np.zeros(3)
-        return quat_to_rotmat_np(state[6:10]) @ (-drag * state[3:6])
+        return rotation @ (-self._drag * state[3:6])
 
     def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Two half-spaces per looked-up stage (see the module docstring): the tightest of the

@@ -97,9 +97,10 @@ class RTIPolicy(Policy):
         """The OCP's state for a drone state [p, v_B, q] (identity unless the OCP augments it)."""
         return state
 
-    def model_acceleration(self, state: np.ndarray) -> np.ndarray:
-        """World-frame acceleration the OCP's model adds to gravity and thrust at ``state`` (e.g. a
-        drag model; zero here): the attitude observer counts it as explained."""
+    def model_acceleration(self, state: np.ndarray, rotation: np.ndarray) -> np.ndarray:
+        """World-frame acceleration the OCP's model adds to gravity and thrust at ``state`` (its
+        body-to-world ``rotation`` given; e.g. a drag model; zero here): the attitude observer
+        counts it as explained."""
         return np.zeros(3)
 
     @property
@@ -129,7 +130,7 @@ class RTIPolicy(Policy):
         dt, tau = self.config.control_dt, self.config.observer_time_constant
         if self.config.observer_model == "attitude":
             R = quat_to_rotmat_np(state[6:10])
-            v, z, a_model = R @ state[3:6], R[:, 2], self.model_acceleration(state)
+            v, z, a_model = R @ state[3:6], R[:, 2], self.model_acceleration(state, R)
             last, self._observed = self._observed, (v, z, a_model)
             if last is None or self.last_command is None:
                 return

@@ -284,17 +284,15 @@ def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(pus
     assert h((push, 0.0, 0.0)) == pytest.approx(calm, abs=1e-9)
 
 
-def _model_plant(cfg, drag=True):
-    """The filter's model as the plant (RK4 at 10 ms), with the airframe's linear drag or without;
-    inputs x, u, a_ext."""
+def _model_plant(cfg):
+    """The filter's model as the plant (RK4 at 10 ms) with the airframe's linear drag D / m,
+    whatever the filter's own ``model_drag``; inputs x, u, a_ext."""
     import casadi as ca
 
-    from controllers.safety_filter import linear_drag
     from wt_inspect_env.physics.dynamics import QuadrotorModel
     model = QuadrotorModel(cfg.params)
     xs, us, ae = ca.SX.sym("x", 10), ca.SX.sym("u", 4), ca.SX.sym("a", 3)
-    d = np.asarray(cfg.params.drag_coefficients[0]) / cfg.params.mass if drag else None
-    assert linear_drag(cfg) is not None
+    d = np.asarray(cfg.params.drag_coefficients[0]) / cfg.params.mass
     return ca.Function("plant", [xs, us, ae], [model.rk4_expr(xs, us, 0.01, a_ext=ae, steps=1, drag=d)])
 
 
@@ -332,7 +330,7 @@ def test_the_filter_does_not_take_the_drag_of_its_own_speed_for_wind(model_drag)
     tris = _wall(-100, -50, -100, 50, (1, 0, 0))
     mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), control_dt=0.01, model_drag=model_drag)
     cfg = mpc.config
-    plant = _model_plant(FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), control_dt=0.01).config)
+    plant = _model_plant(cfg)
     x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
     peak = 0.0
     for k in range(250):

@@ -174,8 +174,7 @@ static double ref_time_to_go(const RefPath *P, const RefState *S, int64_t i) {
     double tau = S->tau[i], t = 0.0;
     int64_t run = S->run[i];
     if (tau < 0.0) { t += -tau / P->approach_speed; tau = 0.0; }
-    t += (P->run_length[run] - tau) / P->speed;
-    for (int64_t r = run + 1; r < P->n_runs; ++r) t += P->run_length[r] / P->speed;
+    t += (P->total_length - P->run_offset[run] - tau) / P->speed;   /* this run's rest and the runs after */
     if (!isnan(P->hold_limit)) t += P->hold_limit * (double)(P->n_runs - 1 - run);
     return t;
 }

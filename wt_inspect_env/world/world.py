@@ -92,6 +92,7 @@ class StepResult:
 #: the end hold at the latest (see BatchedReference.set_deadline)
 DEADLINE_MARGIN_S = 1.0
 
+
 class InspectionWorld:
     """N inspection drones on one planned mission (see the module docstring).
 

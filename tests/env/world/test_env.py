@@ -312,6 +312,14 @@ def test_reference_thresholds_scale_with_the_standoff():
     env.close()
 
 
+def _fly_to_the_end(env, action):
+    """Step ``action`` until the episode ends; (terminated, truncated, last info)."""
+    info, term, trunc = {}, False, False
+    while not (term or trunc):
+        _, _, term, trunc, info = env.step(action)
+    return term, trunc, info
+
+
 def test_a_mission_that_falls_behind_ends_by_its_time_limit():
     """A hovering drone, stalls only after 10,000 s without progress, and a time limit 10 s over
     the nominal mission (+ the end hold and the deadline margin): the point waits 2 m ahead until
@@ -327,9 +335,7 @@ def test_a_mission_that_falls_behind_ends_by_its_time_limit():
     u = env.unwrapped
     env.reset(seed=0)
     hover = u.scaling.hover_action()
-    info, term, trunc = {}, False, False
-    while not (term or trunc):
-        _, _, term, trunc, info = env.step(hover)
+    term, trunc, info = _fly_to_the_end(env, hover)
     assert trunc and not term and info["mission_complete"] and info["stalls"] == 1
     assert info["time"] < limit - 0.5
     assert info["skipped_m"] > 0.9 * u.world.reference.total_length
@@ -352,9 +358,7 @@ def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
     u = env.unwrapped
     env.reset(seed=0)
     hover = u.scaling.hover_action()
-    info, term, trunc = {}, False, False
-    while not (term or trunc):
-        _, _, term, trunc, info = env.step(hover)
+    term, trunc, info = _fly_to_the_end(env, hover)
     assert trunc and not term and info["mission_complete"]      # a completed mission truncates
     assert info["stalls"] >= 1 and info["skipped_m"] > 0.5 * u.world.reference.total_length
     assert info["time"] < 0.6 * u.world.time_limit        # the nominal time plus the stall, not the limit
