@@ -53,7 +53,8 @@ class RTIPolicy(Policy):
         self.obstacles = check_obstacles(obstacles)
         self.base_ocp = self.build_ocp(config)
         self.clearance_active = bool(config.clearance and self.obstacles is not None)
-        self.ocp = (clearance_ocp(self.base_ocp, config, self.clearance_half_spaces, self.clearance_disturbance)
+        self.ocp = (clearance_ocp(self.base_ocp, config, self.clearance_half_spaces, self.clearance_disturbance,
+                                  self.model_drag(config))
                     if self.clearance_active else self.base_ocp)
         self._nu = self.base_ocp.nu
         if self.clearance_active:
@@ -96,6 +97,11 @@ class RTIPolicy(Policy):
     def model_state(self, state: np.ndarray) -> np.ndarray:
         """The OCP's state for a drone state [p, v_B, q] (identity unless the OCP augments it)."""
         return state
+
+    def model_drag(self, config: MPCConfig) -> np.ndarray | None:
+        """The linear body drag per unit mass [1/s] per axis of the OCP's model, which its clearance
+        constraint then credits to braking (None here: the MPCs' models have none)."""
+        return None
 
     def model_acceleration(self, state: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """World-frame acceleration the OCP's model adds to gravity and thrust at ``state`` (its

@@ -254,17 +254,20 @@ def test_a_stage_flying_along_a_wall_must_stop_within_the_free_ray_ahead(speed):
         assert abs(u[0]) > 0.1 or u[3] > hover[3] + 0.1
 
 
+@pytest.mark.parametrize("model_drag", [False, True])
 @pytest.mark.parametrize("push", [0.0, 2.0, 5.0])
-def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(push):
+def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(push, model_drag):
     """The filter's clearance constraint with the observer's disturbance a_ext: approaching a wall
     at 4 m/s, a push of ``push`` m/s^2 towards it leaves clearance_brake - push to brake with (at
-    least BRAKE_FLOOR of it), so h falls by exactly the longer stop v^2 / 2 (a - push) - v^2 / 2a;
-    a push away from the wall changes nothing."""
+    least BRAKE_FLOOR of it), so h falls by exactly the longer stop; a push away from the wall
+    changes nothing. With the model's drag the stop is v^2 / 2 (a + k v / 2), k the body's drag
+    along the wall's normal at the braking tilt atan(a / g) (d_xy cos^2 + d_z sin^2)."""
     from controllers.rti_policy.clearance import BRAKE_FLOOR
     from controllers.safety_filter import A_EXT, FilterMPC
+    from wt_inspect_env.physics.quadrotor import GRAVITY
     from wt_inspect_env.planner.proximity import TurbineProximity
     tris = _wall(0, -50, 0, 50, (1, 0, 0))
-    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), clearance_reaction=0.0)
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), clearance_reaction=0.0, model_drag=model_drag)
     cfg = mpc.config
     x = np.array([5.0, 0.0, 50.0, -4.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])      # level, 4 m/s at the wall
     u = np.append(cfg.hover_input, 0.0)
@@ -277,11 +280,39 @@ def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(pus
         return float(np.asarray(mpc.ocp.path_constraint(x, u, p)).ravel()[0])
 
     a = cfg.clearance_brake
+    k = 0.0
+    if model_drag:
+        d_xy, d_z = cfg.params.drag_coefficients[0][0] / cfg.params.mass, cfg.params.drag_coefficients[0][2] / cfg.params.mass
+        tilt = np.arctan2(a, GRAVITY)
+        k = d_xy * np.cos(tilt) ** 2 + d_z * np.sin(tilt) ** 2
+
+    def stop(brake):
+        return 16.0 / (2 * (brake + 0.5 * k * 4.0))
+
     calm = h((0.0, 0.0, 0.0))
-    assert calm == pytest.approx(5.0 - 3.1 - 16.0 / (2 * a), abs=1e-9)
+    assert calm == pytest.approx(5.0 - 3.1 - stop(a), abs=1e-9)
     left = max(a - push, BRAKE_FLOOR * a)
-    assert h((-push, 0.0, 0.0)) == pytest.approx(calm - 16.0 / (2 * left) + 16.0 / (2 * a), abs=1e-9)
+    assert h((-push, 0.0, 0.0)) == pytest.approx(calm - stop(left) + stop(a), abs=1e-9)
     assert h((push, 0.0, 0.0)) == pytest.approx(calm, abs=1e-9)
+
+
+@pytest.mark.parametrize("brake", [0.75, 3.0, 6.0])
+@pytest.mark.parametrize("k", [0.0, 0.14, 0.8, 2.0])
+def test_the_stopping_distance_with_drag_bounds_the_integrated_stop(brake, k):
+    """stopping_distance against the stop integrated from first principles (dv/dt = -(a + k v),
+    dx/dt = v, small steps): never shorter, and at most what braking without drag needs."""
+    from controllers.rti_policy.clearance import stopping_distance
+    for v0 in (0.5, 2.0, 5.0, 12.0):
+        v, x, dt = v0, 0.0, 1e-5
+        while v > 0.0:
+            dv = (brake + k * v) * dt
+            x += (v - 0.5 * dv) * dt if dv < v else v * v / (2.0 * (brake + k * v))
+            v -= dv
+        bound = stopping_distance(v0, brake, k)
+        assert bound >= x - 1e-4
+        assert bound <= v0 ** 2 / (2.0 * brake) + 1e-12
+        if k == 0.0:
+            assert bound == pytest.approx(x, rel=1e-3)
 
 
 def _model_plant(cfg):
