@@ -82,6 +82,7 @@ class RTIPolicy(Policy):
         self._a_hat = np.zeros(3)         # the disturbance observer's estimate (see on_measurement)
         # the attitude observer's last (world velocity, body z, model acceleration)
         self._observed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+        self._observer_primed = False     # the attitude observer has taken its first residual
 
     # -- what a subclass provides -----------------------------------------------------------------
     def build_ocp(self, config: Any) -> OCP:
@@ -143,7 +144,11 @@ class RTIPolicy(Policy):
             thrust = float(self.last_command[3]) / self.config.params.mass
             explained = 0.5 * (z + last[1]) * thrust + 0.5 * (a_model + last[2]) - np.array([0.0, 0.0, GRAVITY])
             residual = (v - last[0]) / dt - explained
-            self._a_hat += (residual - self._a_hat) * (dt / (tau + dt))
+            if self._observer_primed:
+                self._a_hat += (residual - self._a_hat) * (dt / (tau + dt))
+            else:       # the first residual is the estimate: no lag of tau on a wind present at the start
+                self._a_hat = residual
+                self._observer_primed = True
         else:
             predicted = self.predicted_state
             if predicted is None:
@@ -186,6 +191,7 @@ class RTIPolicy(Policy):
         self._prediction_offset = None
         self._a_hat = np.zeros(3)
         self._observed = None
+        self._observer_primed = False
 
     def set_weights(self, weights: Any) -> None:
         """Switch weights: a weight object of the config's class or a set name. The RTI solver

@@ -376,3 +376,27 @@ def test_the_filter_does_not_take_the_drag_of_its_own_speed_for_wind(model_drag)
         assert peak < 0.3
     else:
         assert peak > 1.0
+
+
+def test_the_attitude_observer_sees_a_push_present_at_the_start():
+    """A 7 m/s^2 push (a 12 m/s wind on this airframe) present from the first step: the attitude
+    observer takes its first residual as its estimate, so after two measurements it holds the push
+    within 5 % - where a filter of time constant 0.3 s from zero would hold under 10 % of it - and
+    a reset starts it over."""
+    from controllers.safety_filter import FilterMPC
+    from wt_inspect_env.planner.proximity import TurbineProximity
+    tris = _wall(-100, -50, -100, 50, (1, 0, 0))
+    mpc = FilterMPC(d_ref=7.0, obstacles=TurbineProximity([tris]), control_dt=0.01)
+    cfg = mpc.config
+    assert cfg.observer_model == "attitude" and cfg.observer_time_constant == pytest.approx(0.3)
+    plant = _model_plant(cfg)
+    push = np.array([0.0, 7.0, 0.0])
+    for episode in range(2):
+        mpc.reset()
+        assert np.all(mpc.disturbance_estimate == 0.0)
+        x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
+        for _ in range(2):
+            u = mpc.filter_command(cfg.hover_input, _state_obs(x, point=(-93.0, 0.0, 50.0)))
+            x = np.asarray(plant(x, u, push)).ravel()
+        mpc.filter_command(cfg.hover_input, _state_obs(x, point=(-93.0, 0.0, 50.0)))
+        np.testing.assert_allclose(mpc.disturbance_estimate, push, atol=0.05 * 7.0)
