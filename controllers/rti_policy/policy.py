@@ -83,6 +83,7 @@ class RTIPolicy(Policy):
         # the attitude observer's last (world velocity, body z, model acceleration)
         self._observed: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
         self._observer_primed = False     # the attitude observer has taken its first residual
+        self._rotor_thrust: float | None = None   # the attitude observer's lagged rotor thrust [N]
 
     # -- what a subclass provides -----------------------------------------------------------------
     def build_ocp(self, config: Any) -> OCP:
@@ -141,7 +142,7 @@ class RTIPolicy(Policy):
             last, self._observed = self._observed, (v, z, a_model)
             if last is None or self.last_command is None:
                 return
-            thrust = float(self.last_command[3]) / self.config.params.mass
+            thrust = self._applied_thrust(float(self.last_command[3]), dt) / self.config.params.mass
             explained = 0.5 * (z + last[1]) * thrust + 0.5 * (a_model + last[2]) - np.array([0.0, 0.0, GRAVITY])
             residual = (v - last[0]) / dt - explained
             if self._observer_primed:
@@ -158,6 +159,19 @@ class RTIPolicy(Policy):
         cap = self.config.observer_max_accel
         if norm > cap:
             self._a_hat *= cap / norm
+
+    def _applied_thrust(self, command: float, dt: float) -> float:
+        """The mean rotor thrust [N] over a step of ``dt`` with ``command`` held, for a first-order
+        rotor lag (``params.motor_time_constant``) from the thrust the last step ended at (the
+        first command at the start); advances that state."""
+        t_m = self.config.params.motor_time_constant
+        start = command if self._rotor_thrust is None else self._rotor_thrust
+        if t_m <= 0.0:
+            self._rotor_thrust = command
+            return command
+        decay = float(np.exp(-dt / t_m))
+        self._rotor_thrust = command + (start - command) * decay
+        return command + (start - command) * (t_m / dt) * (1.0 - decay)
 
     # -- common -----------------------------------------------------------------------------------
     def _weight_vectors(self, weights: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -192,6 +206,7 @@ class RTIPolicy(Policy):
         self._a_hat = np.zeros(3)
         self._observed = None
         self._observer_primed = False
+        self._rotor_thrust = None
 
     def set_weights(self, weights: Any) -> None:
         """Switch weights: a weight object of the config's class or a set name. The RTI solver
