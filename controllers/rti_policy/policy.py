@@ -162,10 +162,10 @@ class RTIPolicy(Policy):
 
     def _applied_thrust(self, command: float, dt: float) -> float:
         """The mean rotor thrust [N] over a step of ``dt`` with ``command`` held, for a first-order
-        rotor lag (``params.motor_time_constant``) from the thrust the last step ended at (the
-        first command at the start); advances that state."""
+        rotor lag (``params.motor_time_constant``) from the thrust the last step ended at (hover
+        at the start, where the simulator starts its rotors); advances that state."""
         t_m = self.config.params.motor_time_constant
-        start = command if self._rotor_thrust is None else self._rotor_thrust
+        start = float(self.config.hover_input[3]) if self._rotor_thrust is None else self._rotor_thrust
         if t_m <= 0.0:
             self._rotor_thrust = command
             return command
