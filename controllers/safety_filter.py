@@ -25,19 +25,21 @@ thrust along its body axis plus gravity) and only then brakes. Which half-space 
 differs from the MPCs', whose drone flies at the stand-off: the nearest surface is not always the
 one a policy flies at. A policy flying along a nacelle towards the tower sees the nacelle nearest
 until the tower is inside its stopping distance (a campaign flight reached 12 m/s along the
-nacelle and hit the tower). So each looked-up stage keeps *two* half-spaces (the OCP's clearance
-constraint with ``half_spaces=2``, both relaxed by the one slack):
+nacelle and hit the tower). So each looked-up stage keeps *three* half-spaces (the OCP's clearance
+constraint with ``half_spaces=3``, all relaxed by the one slack):
 
-1. the tightest of three candidates - the supporting half-space at the stage's position, the one
-   at a *look-ahead point* towards its stopping point (along the velocity, by the distance the
-   constraint says it needs to stop - reaction plus braking - but at most ``LOOKAHEAD_FRACTION`` of
-   the stage's clearance: one sphere-tracing step, so the point is certainly outside the
-   structure), and the ground's (z >= d_min) - the one that leaves the least margin for that
-   stage's state. Each is a supporting half-space of the nearest convex part of the mesh to a
-   point outside it (or the ground), so any of them keeps the position d_min from that part.
-   (Taking the stopping point itself would be wrong where it lies inside the structure: its
-   closest point's half-space faces the wrong way.)
-2. a *free-ray bound* along the stage's direction of flight: the balls around the position (radius
+1. the tighter of the supporting half-space at the stage's position and the ground's (z >= d_min);
+   each is a supporting half-space of the nearest convex part of the mesh to a point outside it
+   (or the ground), so it keeps the position d_min from that part.
+2. the supporting half-space at a *look-ahead point* towards the stage's stopping point (along
+   the velocity, by the distance the constraint says it needs to stop - reaction plus braking -
+   but at most ``LOOKAHEAD_FRACTION`` of the stage's clearance: one sphere-tracing step, so the
+   point is certainly outside the structure). (Taking the stopping point itself would be wrong
+   where it lies inside the structure: its closest point's half-space faces the wrong way.)
+   In a concave corner this is the surface the drone flies at while the first is the one beside
+   it; with one slot for the tighter of the two (tried), a drone braking for the surface ahead
+   drifted into the one beside it (a hub adversary to 2.69 m, no wind).
+3. a *free-ray bound* along the stage's direction of flight: the balls around the position (radius
    d_0, its clearance) and around the look-ahead point (d_1) hold no structure, and both lie on
    the ray ahead, so the ray is free for at least L = max(d_0, step + d_1); the drone must be able
    to stop within L - d_min along it. The first half-space only sees the surface nearest to one
@@ -62,11 +64,18 @@ observer read the drag of the drone's own speed as a push of up to 0.4 g towards
 the filter, believing it, had its QP fail as it braked (the adversarial study's worst flights before
 the change).
 
-Known limits (measured in ``results/safety_filter``): one supporting half-space per stage cannot
-see a second surface in a concave corner (the hub between blade roots), and in strong turbulence
-the observer's estimate lags the gusts by its time constant, so a policy that pulls towards the
-structure can be pushed a little inside d_min; both show as flights that dip below d_min without
-colliding.
+The drag also helps braking: the stopping distances credit it at half its initial deceleration
+(:func:`controllers.rti_policy.clearance.stopping_distance`, an upper bound of the integrated stop);
+without that credit a steady push towards the structure left the agent of the paper mission a
+quarter of its braking deceleration, and the filter stepped in on a tenth of its steps in the 4 m/s
+gust. The observer starts at its first residual (a wind present at the start is seen at once, not
+after its time constant) and takes the thrust through the rotors' first-order lag (the filter's
+own corrections swing the thrust command, which read as gusts when taken for the thrust).
+
+Known limits (measured in ``results/safety_filter``): the half-spaces are linear pieces of the
+structure around three points per stage, the observer lags turbulence by its time constant and the
+model has no rate loop, so a drone pushed hard at the structure can still dip a little below the
+back-off; the study reports every dip.
 
 When the QP fails, the RTI core flies the shifted previous plan (its last feasible backup plan);
 once that is used up, the filter levels the drone and brakes (:func:`brake_command`) where the
@@ -234,7 +243,7 @@ class FilterMPC(RTIPolicy):
     command and an observation and returns the filtered one."""
 
     config_class = SafetyFilterConfig
-    clearance_half_spaces = 2
+    clearance_half_spaces = 3
     clearance_disturbance = A_EXT
 
     def __init__(self, config: SafetyFilterConfig | None = None, *, obstacles: Any = None, **overrides: Any) -> None:
@@ -276,9 +285,9 @@ class FilterMPC(RTIPolicy):
         return rotation @ (-self._drag * state[3:6])
 
     def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-        """Two half-spaces per looked-up stage (see the module docstring): the tightest of the
-        supporting half-spaces at the stage's position, at its look-ahead point and the ground's;
-        and the free-ray bound along the stage's velocity."""
+        """Three half-spaces per looked-up stage (see the module docstring): the tighter of the
+        supporting half-spaces at the stage's position and the ground's; the one at its
+        look-ahead point; and the free-ray bound along the stage's velocity."""
         cfg = self.config
         keep = cfg.d_min + cfg.clearance_backoff
         pos = plan[:, 0:3]
@@ -294,30 +303,31 @@ class FilterMPC(RTIPolicy):
         step = np.minimum(reach, LOOKAHEAD_FRACTION * d0)
         c1, d1, n1 = self.obstacles.closest(pos + ahead * step[:, None])
         self.last_clearance = float(d0[0]) if self._query_stages[0] == 0 else float("nan")
-        # first: of [at the position, at the look-ahead point, the ground] the least margin
-        cn = np.stack([n0, n1, np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
-        off = np.stack([np.einsum("ij,ij->i", n0, c0), np.einsum("ij,ij->i", n1, c1), np.zeros(q)], axis=1) + keep
-        v_n = np.einsum("qij,qj->qi", cn, vel)
-        approach = np.maximum(0.0, -v_n)
+        normals = np.empty((q, 3, 3))
+        offsets = np.empty((q, 3))
+        # first: of [at the position, the ground] the one that leaves the least margin
+        cn = np.stack([n0, np.broadcast_to((0.0, 0.0, 1.0), (q, 3))], axis=1)
+        off = np.stack([np.einsum("ij,ij->i", n0, c0), np.zeros(q)], axis=1) + keep
+        approach = np.maximum(0.0, -np.einsum("qij,qj->qi", cn, vel))
         margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
                   - approach ** 2 / (2.0 * cfg.clearance_brake))
         rows = np.arange(q)
         pick = margin.argmin(axis=1)
-        normals = np.empty((q, 2, 3))
-        offsets = np.empty((q, 2))
         normals[:, 0], offsets[:, 0] = cn[rows, pick], off[rows, pick]
-        # second: the free ray ahead. The balls around the position (radius d0) and the
+        # second: the surface ahead, at the look-ahead point
+        normals[:, 1], offsets[:, 1] = n1, np.einsum("ij,ij->i", n1, c1) + keep
+        # third: the free ray ahead. The balls around the position (radius d0) and the
         # look-ahead point (d1, on the ray) hold no structure, so the ray is free for at least
         # L = max(d0, step + d1); the drone must stop within L - d_min along it:
         # ahead^T (p - pos) + stop <= L - keep, i.e. n = -ahead, b = -ahead^T pos - L + keep.
         free = np.maximum(d0, step + d1)
-        normals[:, 1] = -ahead
-        offsets[:, 1] = -np.einsum("ij,ij->i", ahead, pos) - free + keep
+        normals[:, 2] = -ahead
+        offsets[:, 2] = -np.einsum("ij,ij->i", ahead, pos) - free + keep
         # no direction at rest, and no room to bound once inside d_min (the first half-space
         # pushes out): an inactive bound (z >= -INACTIVE)
         idle = (speed < IDLE_SPEED) | (d0 <= keep)
-        normals[idle, 1] = (0.0, 0.0, 1.0)
-        offsets[idle, 1] = -INACTIVE
+        normals[idle, 2] = (0.0, 0.0, 1.0)
+        offsets[idle, 2] = -INACTIVE
         return normals, offsets, float(min(d0.min(), d1.min(), pos[:, 2].min()))
 
     def _solve(self, state: np.ndarray, params: np.ndarray) -> np.ndarray:
