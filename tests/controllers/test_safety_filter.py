@@ -282,7 +282,8 @@ def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(pus
     a = cfg.clearance_brake
     k = 0.0
     if model_drag:
-        d_xy, d_z = cfg.params.drag_coefficients[0][0] / cfg.params.mass, cfg.params.drag_coefficients[0][2] / cfg.params.mass
+        drag, mass = cfg.params.drag_coefficients[0], cfg.params.mass
+        d_xy, d_z = drag[0] / mass, drag[2] / mass
         tilt = np.arctan2(a, GRAVITY)
         k = d_xy * np.cos(tilt) ** 2 + d_z * np.sin(tilt) ** 2
 
@@ -391,7 +392,7 @@ def test_the_attitude_observer_sees_a_push_present_at_the_start():
     assert cfg.observer_model == "attitude" and cfg.observer_time_constant == pytest.approx(0.3)
     plant = _model_plant(cfg)
     push = np.array([0.0, 7.0, 0.0])
-    for episode in range(2):
+    for _episode in range(2):
         mpc.reset()
         assert np.all(mpc.disturbance_estimate == 0.0)
         x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])
