@@ -14,8 +14,8 @@ from wt_inspect_env.task.geometry import standoff_state as ideal_state
 
 
 @pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory) -> str:
-    return str(tmp_path_factory.mktemp("qpcache"))
+def cache_dir(qp_cache_dir) -> str:
+    return qp_cache_dir
 
 
 def pendulum_ocp(horizon: int = 20, constrained: bool = True) -> OCP:

@@ -31,8 +31,8 @@ D_REF = 7.0
 
 
 @pytest.fixture(scope="module")
-def solver_options(tmp_path_factory) -> RTIOptions:
-    return RTIOptions(cache_dir=str(tmp_path_factory.mktemp("qpcache")))
+def solver_options(qp_cache_dir) -> RTIOptions:
+    return RTIOptions(cache_dir=qp_cache_dir)
 
 
 @pytest.fixture(scope="module")
