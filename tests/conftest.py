@@ -6,7 +6,8 @@ for ``wt_inspect``, ``px4``) plus ``project`` (docs, lint, layout, examples). Ma
 are the ``cli``, ``px4`` and ``project`` folders, every ``slow`` test (closed loops and training)
 and any test marked so by hand; the rest are unit. ``pytest -m unit`` is the quick loop.
 
-Fixtures: ``params`` (the Matrice-100-like preset every controller test flies). The controller
+Fixtures: ``params`` (the Matrice-100-like preset every controller test flies) and ``qp_cache_dir``
+(one private compiled-library cache for the session's controller tests). The controller
 tests' closed-loop harness (model plant, surface pass, loop) is the plain module
 ``tests/closed_loop.py``, imported by name.
 
@@ -61,6 +62,14 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.integration)
         if item.get_closest_marker("integration") is None:
             item.add_marker(pytest.mark.unit)
+
+
+@pytest.fixture(scope="session")
+def qp_cache_dir(tmp_path_factory) -> str:
+    """A private code-generation cache (a fresh directory, not the user's cache) shared by the
+    controller tests that compile their QP libraries: each problem is compiled once a session (per
+    xdist worker) rather than once a module."""
+    return str(tmp_path_factory.mktemp("qpcache"))
 
 
 @pytest.fixture(scope="session")

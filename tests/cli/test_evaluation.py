@@ -16,6 +16,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from stub_policies import Hover
 
 from wt_inspect.evaluation import OutputDirError, evaluate_policy, load_run, registry, run_evaluation
 from wt_inspect.evaluation.cli import main as cli_main
@@ -336,16 +337,6 @@ def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
     ``"end"`` the run ends there. results.csv carries the stalls and the path skipped, the run's
     stall log when, where and why (a hovering drone far from its pose: not the clearance), the
     run file keeps the log and results.md lists it."""
-    class Hover:
-        def __init__(self, env):
-            self.a = env.scaling.hover_action()
-
-        def reset(self, seed=None):
-            pass
-
-        def act(self, obs):
-            return self.a
-
     res = evaluate_policy(lambda env: Hover(env), scenario="surface", wind=0.0,
                           env_overrides={"reference_stall_time": 2.0, "reference_on_stall": "end"}, record=False)
     row = res.row()

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 import trimesh.triangles as tt
+from stub_policies import Climb, Hover
 
 from wt_inspect.evaluation import evaluate_policy, load_run, run_evaluation
 from wt_inspect.evaluation.harness_metrics import (
@@ -128,30 +129,9 @@ def test_crafted_line_past_a_blade_matches_the_brute_force():
         env.close()
 
 
-class Hover:
-    """Holds the hover command (in still air it keeps every rotor at m g / 4)."""
-
-    def __init__(self, env) -> None:
-        self.a = env.scaling.hover_action()
-
-    def reset(self, seed=None) -> None:
-        pass
-
-    def act(self, obs):
-        return self.a
-
-
 def make_hover(env):
     """A factory (the harness takes a class with act/reset for a policy object, not a factory)."""
     return Hover(env)
-
-
-class Climb(Hover):
-    """Zero body rates and 20 % more than hover thrust: a straight vertical climb."""
-
-    def __init__(self, env) -> None:
-        s = env.scaling
-        self.a = s.to_action([0.0, 0.0, 0.0, 1.2 * s.hover_thrust])
 
 
 def test_flight_close_to_a_blade_reports_its_clearance(tmp_path):

@@ -8,10 +8,9 @@ import math
 
 import numpy as np
 import pytest
-from closed_loop import ModelPlant, SurfacePass, make_observation, offset_start, run_in_simulator
+from closed_loop import ModelPlant, SurfacePass, check_sqp_vs_ipopt, check_standoff_hold, make_observation, offset_start
 
 from controllers.nmpc import NMPCConfig, NMPCPolicy, NMPCWeights, build_ocp, residual_functions
-from controllers.rti import IpoptOCPSolver, RTISolver
 from controllers.tracking import TrackingReference, standoff_reference
 from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
 
@@ -26,13 +25,8 @@ def policy():
 def test_holds_standoff_pose_in_simulator(policy, params):
     scenario = SurfacePass(speed=0.0, normal=(0.6, -0.8, 0.0), direction=(0.8, 0.6, 0.0))
     x0 = offset_start(scenario, D_REF, offset=(0.3, -0.3, 0.2), yaw_error_deg=8.0)
-    dists, heads, stats, final = run_in_simulator(policy, params, scenario, x0, steps=400)
-    assert all(s.status == "SUCCESS" and not s.fallback and s.solve_ms > 0 for s in stats)
-    assert np.all(heads[100:] > 0.99)
-    assert np.all(np.abs(dists[200:] - D_REF) < 0.1)
-    assert abs(dists[-1] - D_REF) < 0.02 and heads[-1] > 0.999
-    waypoint = scenario.ideal_state(0.0, D_REF)[:3]
-    assert np.linalg.norm(final[:3] - waypoint) < 0.05
+    heads = check_standoff_hold(policy, params, scenario, x0, D_REF, steps=400)
+    assert np.all(heads[100:] > 0.99) and heads[-1] > 0.999
 
 
 def test_residual_is_zero_at_the_reference(params):
@@ -135,18 +129,11 @@ def test_quaternion_sign_flip_leaves_the_action_unchanged(policy, params):
 def test_rti_sqp_matches_ipopt(params):
     """The OCP solved to convergence by the RTI core's SQP mode and by IPOPT agrees."""
     cfg = NMPCConfig(params=params, horizon=20)
-    ocp = build_ocp(cfg)
-    W, WN = cfg.weights.stage_vector(), cfg.weights.terminal_vector()
     scenario = SurfacePass(speed=0.7)
     x0 = np.append(offset_start(scenario, D_REF, offset=(0.5, -0.8, 0.3), yaw_error_deg=20), 0.0)
     p = standoff_reference(scenario.point(0), np.array([0.0, -1.0]), scenario.velocity(),
                            D_REF).parameters()
-    rti = RTISolver(ocp, W, WN, cfg.solver)
-    u_rti = rti.solve(x0, p, tol=1e-10)
-    ip = IpoptOCPSolver(ocp, W, WN, tol=1e-10)
-    u_ip = ip.solve(x0, p)
-    assert not ip.last_stats.fallback
-    np.testing.assert_allclose(u_rti, u_ip, rtol=1e-5, atol=1e-5)
+    rti, ip = check_sqp_vs_ipopt(build_ocp(cfg), cfg, x0, p)
     np.testing.assert_allclose(rti.iterate, ip.iterate, atol=1e-4)
 
 

@@ -14,8 +14,8 @@ from wt_inspect_env.task.geometry import standoff_state as ideal_state
 
 
 @pytest.fixture(scope="module")
-def cache_dir(tmp_path_factory) -> str:
-    return str(tmp_path_factory.mktemp("qpcache"))
+def cache_dir(qp_cache_dir) -> str:
+    return qp_cache_dir
 
 
 def pendulum_ocp(horizon: int = 20, constrained: bool = True) -> OCP:
@@ -49,15 +49,26 @@ PEND_W = np.array([10.0, 1.0, 0.5])
 PEND_WN = np.array([50.0, 5.0])
 
 
+def converge_sqp_and_ipopt(ocp: OCP, W, WN, opts: RTIOptions, x0, p, max_iter: int, qp_solver: str | None = None):
+    """The RTI core's SQP mode (tol 1e-8, at most ``max_iter`` iterations) and IPOPT (tol 1e-12) on the
+    same problem: (rti, ipopt) after checking the SQP converged (``SUCCESS``) and, when given, that it
+    runs the QP path ``qp_solver``."""
+    rti = RTISolver(ocp, W, WN, opts)
+    if qp_solver is not None:
+        assert rti.qp_solver == qp_solver
+    rti.solve(x0, p, max_iter=max_iter, tol=1e-8)
+    assert rti.last_stats.status == "SUCCESS"
+    ipopt = IpoptOCPSolver(ocp, W, WN, tol=1e-12)
+    ipopt.solve(x0, p)
+    return rti, ipopt
+
+
 def test_sqp_matches_ipopt_with_active_constraints(cache_dir):
     ocp = pendulum_ocp(horizon=40)
     x0, p = np.array([0.0, 0.0]), np.array([3.0])
-    rti = RTISolver(ocp, PEND_W, PEND_WN, RTIOptions(cache_dir=cache_dir, qp_mode="balance",
-                                                     qp_tol=1e-8, qp_iter_max=100))
-    rti.solve(x0, p, max_iter=200, tol=1e-8)
-    assert rti.last_stats.status == "SUCCESS" and rti.last_stats.sqp_iterations < 200
-    ipopt = IpoptOCPSolver(ocp, PEND_W, PEND_WN, tol=1e-12)
-    ipopt.solve(x0, p)
+    opts = RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100)
+    rti, ipopt = converge_sqp_and_ipopt(ocp, PEND_W, PEND_WN, opts, x0, p, max_iter=200)
+    assert rti.last_stats.sqp_iterations < 200
     w_rti, w_ip = rti.iterate, ipopt.iterate
     xs, us = ocp.unpack(w_rti)
     # the constraints are really active, otherwise this would not test the hooks
@@ -86,11 +97,7 @@ def hard_vtnmpc_problem(cfg: VTNMPCConfig):
 def test_vtnmpc_sqp_matches_ipopt(cache_dir):
     cfg = VTNMPCConfig(solver=RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100))
     ocp, W, WN, x0, params = hard_vtnmpc_problem(cfg)
-    rti = RTISolver(ocp, W, WN, cfg.solver)
-    rti.solve(x0, params, max_iter=100, tol=1e-8)
-    assert rti.last_stats.status == "SUCCESS"
-    ipopt = IpoptOCPSolver(ocp, W, WN, tol=1e-12)
-    ipopt.solve(x0, params)
+    rti, ipopt = converge_sqp_and_ipopt(ocp, W, WN, cfg.solver, x0, params, max_iter=100)
     xs, us = ocp.unpack(rti.iterate)
     xs_ip, us_ip = ocp.unpack(ipopt.iterate)
     np.testing.assert_allclose(xs, xs_ip, atol=2e-6)
@@ -317,12 +324,7 @@ def test_direct_hpipm_sqp_matches_ipopt_and_the_plugin(cache_dir):
     base = dict(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100)
     cfg = VTNMPCConfig(solver=RTIOptions(qp_solver="hpipm", **base))
     ocp, W, WN, x0, params = hard_vtnmpc_problem(cfg)
-    rti = RTISolver(ocp, W, WN, cfg.solver)
-    assert rti.qp_solver == "hpipm"
-    rti.solve(x0, params, max_iter=100, tol=1e-8)
-    assert rti.last_stats.status == "SUCCESS"
-    ipopt = IpoptOCPSolver(ocp, W, WN, tol=1e-12)
-    ipopt.solve(x0, params)
+    rti, ipopt = converge_sqp_and_ipopt(ocp, W, WN, cfg.solver, x0, params, max_iter=100, qp_solver="hpipm")
     np.testing.assert_allclose(rti.iterate, ipopt.iterate, atol=1e-4)
     assert rti.cost(params) == pytest.approx(ipopt.last_stats.cost, rel=1e-9)
     us = ocp.unpack(rti.iterate)[1]
@@ -352,22 +354,12 @@ def test_direct_hpipm_with_active_state_bounds_and_its_fallback(cache_dir):
     ocp = dataclasses.replace(full, path_constraint=None, h_lower=None, h_upper=None)
     x0, p = np.array([0.0, 0.0]), np.array([3.0])
     opts = RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100, qp_solver="hpipm")
-    rti = RTISolver(ocp, PEND_W, PEND_WN, opts)
-    assert rti.qp_solver == "hpipm"
-    rti.solve(x0, p, max_iter=200, tol=1e-8)
-    assert rti.last_stats.status == "SUCCESS"
-    ipopt = IpoptOCPSolver(ocp, PEND_W, PEND_WN, tol=1e-12)
-    ipopt.solve(x0, p)
+    rti, ipopt = converge_sqp_and_ipopt(ocp, PEND_W, PEND_WN, opts, x0, p, max_iter=200, qp_solver="hpipm")
     xs, _ = ocp.unpack(rti.iterate)
     assert np.isclose(xs[:, 1].max(), 0.6, atol=1e-6)
     np.testing.assert_allclose(rti.iterate, ipopt.iterate, atol=2e-6)
     # With the path constraint (active in the solution), through HPIPM's general constraints.
-    con = RTISolver(full, PEND_W, PEND_WN, opts)
-    assert con.qp_solver == "hpipm"
-    con.solve(x0, p, max_iter=200, tol=1e-8)
-    assert con.last_stats.status == "SUCCESS"
-    ref = IpoptOCPSolver(full, PEND_W, PEND_WN, tol=1e-12)
-    ref.solve(x0, p)
+    con, ref = converge_sqp_and_ipopt(full, PEND_W, PEND_WN, opts, x0, p, max_iter=200, qp_solver="hpipm")
     xs, us = full.unpack(con.iterate)
     assert np.isclose((xs[:-1, 0] + 0.2 * us[:, 0]).max(), 1.0, atol=1e-6)
     np.testing.assert_allclose(con.iterate, ref.iterate, atol=1e-6)

@@ -34,8 +34,11 @@ def test_a_policy_far_from_the_structure_flies_unchanged():
         env.close()
 
 
-@pytest.mark.parametrize("name,k", [("tower", 0), ("blade", 1), ("hold-inside", 5), ("tower", 6), ("blade", 7),
-                                    ("hold-inside", 11)])
+# Each adversary flies once in the quick suite (tower in still air, blade in the 7 m/s gust, hold-inside
+# in still air); its second seeded start, in the 4 m/s gust, runs with the slow tests.
+@pytest.mark.parametrize("name,k", [("tower", 0), pytest.param("blade", 1, marks=pytest.mark.slow),
+                                    ("hold-inside", 5), pytest.param("tower", 6, marks=pytest.mark.slow),
+                                    ("blade", 7), pytest.param("hold-inside", 11, marks=pytest.mark.slow)])
 def test_adversaries_that_collide_unfiltered_keep_d_min_filtered(name, k):
     """Seeded recoverable starts of the adversarial study (winds: none, gusts, Dryden):
     unfiltered these flights hit the turbine or pass well inside d_min; filtered they stay
@@ -92,9 +95,10 @@ def test_a_passed_step_is_the_qps_own_answer():
     """Pass-through skips the QP only where the QP would return the policy's command: beside the
     filter that passes, a filter with pass-through off is fed the same observations; on every
     passed step its QP answer is the policy's command (to the QP's tolerance), the flight - VT-NMPC+
-    on the paper mission in the 7 m/s gust, 6 s - passes most steps, and a policy driven at the
+    on the paper mission in the 7 m/s gust, 3 s (6 s passed every step too, the largest QP-to-command
+    difference, 1.1e-5, already in the first 3) - passes most steps, and a policy driven at the
     tower is not passed through while the filter corrects it."""
-    env = gym.make("WindTurbineInspection-v0", wind={"type": "gust", "mean_speed": 7.0}, time_limit_s=6.0)
+    env = gym.make("WindTurbineInspection-v0", wind={"type": "gust", "mean_speed": 7.0}, time_limit_s=3.0)
     try:
         u = env.unwrapped
         fast = SafetyFilter(registry.resolve("vtnmpc-plus")(u), env)
@@ -289,7 +293,8 @@ def test_a_disturbance_towards_the_structure_lengthens_the_stopping_distance(pus
     a = cfg.clearance_brake
     k = 0.0
     if model_drag:
-        d_xy, d_z = cfg.params.drag_coefficients[0][0] / cfg.params.mass, cfg.params.drag_coefficients[0][2] / cfg.params.mass
+        drag, mass = cfg.params.drag_coefficients[0], cfg.params.mass
+        d_xy, d_z = drag[0] / mass, drag[2] / mass
         tilt = np.arctan2(a, GRAVITY)
         k = d_xy * np.cos(tilt) ** 2 + d_z * np.sin(tilt) ** 2
 
@@ -411,7 +416,7 @@ def test_the_attitude_observer_sees_a_push_present_at_the_start():
     assert cfg.observer_model == "attitude" and cfg.observer_time_constant == pytest.approx(0.3)
     plant = _model_plant(cfg)
     push = np.array([0.0, 7.0, 0.0])
-    for episode in range(2):
+    for _episode in range(2):
         mpc.reset()
         assert np.all(mpc.disturbance_estimate == 0.0)
         x = np.array([0.0, 0.0, 50.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0])

@@ -37,8 +37,8 @@ WEIGHTS = [WEIGHT_SETS["paper"], WEIGHT_SETS["later_tuning"], NMPCWeights(), PAM
 
 
 @pytest.fixture(scope="module")
-def solver_options(tmp_path_factory) -> RTIOptions:
-    return RTIOptions(qp_mode="speed_abs", cache_dir=str(tmp_path_factory.mktemp("qpcache")))
+def solver_options(qp_cache_dir) -> RTIOptions:
+    return RTIOptions(qp_mode="speed_abs", cache_dir=qp_cache_dir)
 
 
 # -- identity at the paper's conditions ------------------------------------------------------------

@@ -245,22 +245,11 @@ def test_every_registered_controller_builds_and_flies_a_step():
         env.close()
 
 
-class _Hover:
-    """A third-party policy: hover thrust, zero rates (the interface, nothing else)."""
-
-    def __init__(self, env) -> None:
-        self.action = env.scaling.hover_action()
-
-    def reset(self, seed=None) -> None:
-        pass
-
-    def act(self, obs):
-        return self.action
-
-
 def _hover_entry():
+    from stub_policies import Hover
+
     from wt_inspect_env.policy import PolicyEntry
-    return PolicyEntry(_Hover, "hover in place (a third-party registration in a test)", display_name="Hover")
+    return PolicyEntry(Hover, "hover in place (a third-party registration in a test)", display_name="Hover")
 
 
 HOVER_ENTRY = _hover_entry()

@@ -57,15 +57,19 @@ def test_quaternion_norm_preserved_by_continuous_dynamics():
         assert abs(q @ xdot[6:10]) < 1e-12
 
 
-def test_presets_and_bad_params():
+def test_presets_and_an_unknown_preset():
     assert set(PRESETS) == {"matrice100", "lab250"}
     assert get_preset("lab250").mass == pytest.approx(1.09)
     with pytest.raises(ValueError, match="drone preset"):
         get_preset("nope")
-    with pytest.raises(ValueError, match="mass"):
-        QuadrotorParams(mass=-1.0)
-    with pytest.raises(ValueError, match="motor_time_constant"):
-        QuadrotorParams(motor_time_constant=-0.1)
+
+
+# the physics parameters' validation (the simulator and the models all build on QuadrotorParams)
+@pytest.mark.parametrize("field, value", [("mass", -1.0), ("motor_time_constant", -0.1),
+                                          ("motor_time_constant", -0.01)])
+def test_bad_params_raise_naming_the_field(field, value):
+    with pytest.raises(ValueError, match=field):
+        QuadrotorParams(**{field: value})
 
 
 def test_mixer_maps_rotor_thrusts_to_wrench():

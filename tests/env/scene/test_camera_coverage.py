@@ -493,9 +493,12 @@ def _turbine_client(turbine):
 
 def test_default_camera_covers_every_surface_of_the_default_turbine_from_the_standoff():
     """Sweep the ideal stand-off pose (7 m along n_xy, level camera aimed along -n_xy) along each
-    inspected face's centre line of the default turbine, with occlusion by the whole turbine."""
+    inspected face's centre line of the default turbine, with occlusion by the whole turbine. The
+    sweep is the one ``wt-inspect bench coverage`` flies, so this also checks that the benchmark's
+    flight sees every triangle."""
     import pybullet as p
 
+    from wt_inspect.commands.bench_coverage import _sweep as standoff_sweep
     from wt_inspect_env.turbine.mesh import build_turbine
     tb = build_turbine()
     cid = _turbine_client(tb)
@@ -503,19 +506,9 @@ def test_default_camera_covers_every_surface_of_the_default_turbine_from_the_sta
         cam = GimbalCamera()
         vis = TriangleVisibility(cam, tb.blade_vertices, tb.blade_normals, PyBulletOccluder(cid))
         tracker = CoverageTracker(tb.n_blade_triangles)
-        for surf in np.unique(tb.triangle_surface):
-            sel = tb.triangle_surface == surf
-            cen = tb.blade_centroids[sel]
-            n = tb.blade_normals[sel][0]
-            radial = cen.mean(axis=0) - tb.rotor_center
-            radial -= (radial @ tb.rotor_axis) * tb.rotor_axis
-            radial /= np.linalg.norm(radial)
-            r = (cen - tb.rotor_center) @ radial
-            base = cen.mean(axis=0) - ((cen.mean(axis=0) - tb.rotor_center) @ radial) * radial
-            n_xy = np.array([n[0], n[1], 0.0]) / math.hypot(n[0], n[1])
-            R = cam.rotation_from_yaw(math.atan2(-n_xy[1], -n_xy[0]))
-            for rr in np.arange(r.min(), r.max() + 1e-9, 0.25):
-                tracker.update_indices(vis.visible_indices(base + rr * radial + 7.0 * n_xy, R))
+        positions, yaws, _, _ = standoff_sweep(tb, 7.0, 0.25)
+        for pos, yaw in zip(positions, yaws):
+            tracker.update_indices(vis.visible_indices(pos, cam.rotation_from_yaw(yaw)))
         assert tracker.coverage == 1.0
     finally:
         p.disconnect(physicsClientId=cid)

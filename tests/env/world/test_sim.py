@@ -18,7 +18,7 @@ import pytest
 import trimesh
 
 from wt_inspect_env.physics.dynamics import QuadrotorModel, hover_state, quat_to_rotmat_np, yaw_to_quat
-from wt_inspect_env.physics.quadrotor import AIR_DENSITY, GRAVITY, QuadrotorParams, get_preset
+from wt_inspect_env.physics.quadrotor import AIR_DENSITY, GRAVITY, get_preset
 from wt_inspect_env.physics.rate_control import Mixer, RateGains
 from wt_inspect_env.physics.wind import ConstantWind, DrydenWind, FunctionWind, GustWind
 from wt_inspect_env.world.sim import QuadrotorSim, SimConfig
@@ -406,10 +406,6 @@ def test_bad_input_raises_value_errors_naming_the_field():
         SimConfig(ctrl_hz=-1)
     with pytest.raises(ValueError, match="drone preset"):
         QuadrotorSim("phantom")
-    with pytest.raises(ValueError, match="mass"):
-        QuadrotorParams(mass=-1.0)
-    with pytest.raises(ValueError, match="motor_time_constant"):
-        QuadrotorParams(motor_time_constant=-0.01)
     with pytest.raises(ValueError, match="kp"):
         RateGains(kp=(1.0, -1.0, 1.0))
     # A user wind field returning the wrong shape fails at the step, naming the field.
