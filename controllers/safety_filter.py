@@ -252,7 +252,7 @@ class FilterMPC(RTIPolicy):
                              "(a TurbineProximity or env.mission)")
         super().__init__(config, obstacles=obstacles, **overrides)
         cfg = self.config
-        self._drag = self.model_drag(cfg)      # the model's, for the observer (model_acceleration)
+        self._drag = self.body_drag(cfg)      # the model's, for the observer (model_acceleration)
         self._params = np.zeros((cfg.horizon + 1, N_PARAMS))
         self._params[:, :NU] = cfg.hover_input
         self._params[0, NU] = 1.0
@@ -274,7 +274,7 @@ class FilterMPC(RTIPolicy):
         self._params[:, A_EXT] = self._a_hat
         return self._params
 
-    def model_drag(self, config: SafetyFilterConfig) -> np.ndarray | None:
+    def body_drag(self, config: SafetyFilterConfig) -> np.ndarray | None:
         """The model's linear drag (:func:`linear_drag`), which its clearance constraint credits."""
         return linear_drag(config)
 

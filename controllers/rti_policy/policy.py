@@ -54,7 +54,7 @@ class RTIPolicy(Policy):
         self.base_ocp = self.build_ocp(config)
         self.clearance_active = bool(config.clearance and self.obstacles is not None)
         self.ocp = (clearance_ocp(self.base_ocp, config, self.clearance_half_spaces, self.clearance_disturbance,
-                                  self.model_drag(config))
+                                  self.body_drag(config))
                     if self.clearance_active else self.base_ocp)
         self._nu = self.base_ocp.nu
         if self.clearance_active:
@@ -100,7 +100,7 @@ class RTIPolicy(Policy):
         """The OCP's state for a drone state [p, v_B, q] (identity unless the OCP augments it)."""
         return state
 
-    def model_drag(self, config: MPCConfig) -> np.ndarray | None:
+    def body_drag(self, config: MPCConfig) -> np.ndarray | None:
         """The linear body drag per unit mass [1/s] per axis of the OCP's model, which its clearance
         constraint then credits to braking (None here: the MPCs' models have none)."""
         return None
