@@ -38,7 +38,7 @@ from .scene.texture import SpanTexture
 from .task.coverage import CoverageTracker
 from .task.env_config import EnvConfig
 from .task.hooks import TaskHooks
-from .task.spaces import OBS_SHAPES
+from .task.spaces import OBS_SHAPES, OPTIONAL_OBS_SHAPES
 from .util.validation import check_actions, check_array
 from .world.world import InspectionWorld, grow_to_start, start_state
 
@@ -69,7 +69,7 @@ def observation_space(obs_mode: str = "state", resolution: tuple[int, int] = (84
               "progress": (0.0, 1.0)}
     entries = {k: _box(shape, *bounds.get(k, (-np.inf, np.inf))) for k, shape in OBS_SHAPES.items()}
     if structure:
-        entries["structure"] = _box((4,), -np.inf, np.inf)
+        entries["structure"] = _box(OPTIONAL_OBS_SHAPES["structure"], -np.inf, np.inf)
     w, h = resolution
     if "rgb" in IMAGE_KEYS[obs_mode]:
         entries["rgb"] = spaces.Box(0, 255, shape=(h, w, 3), dtype=np.uint8)

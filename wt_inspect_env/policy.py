@@ -21,7 +21,7 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from wt_inspect_env.task.spaces import OBS_KEYS, OBS_SHAPES
+from wt_inspect_env.task.spaces import OBS_KEYS, OBS_SHAPES, OPTIONAL_OBS_SHAPES
 
 _OBS_SIZES = tuple(int(np.prod(OBS_SHAPES[k])) for k in OBS_KEYS)
 _OBS_SLICES = tuple(zip(OBS_KEYS, np.cumsum((0,) + _OBS_SIZES[:-1]).tolist(), np.cumsum(_OBS_SIZES).tolist()))
@@ -50,21 +50,23 @@ def _fast_observation(obs: Any) -> dict[str, np.ndarray] | None:
 
 def check_observation(obs: Mapping[str, Any]) -> dict[str, np.ndarray]:
     """The observation as float64 arrays of the documented shapes; ValueError naming the key
-    otherwise (a missing key or a NaN must not reach a solver). A batch of one is unwrapped."""
+    otherwise (a missing key or a NaN must not reach a solver). A batch of one is unwrapped. The
+    optional entries (:data:`~wt_inspect_env.task.spaces.OPTIONAL_OBS_SHAPES`, e.g. ``structure``)
+    are kept, checked alike, when present: an agent trained on them needs them at evaluation."""
     fast = _fast_observation(obs)
-    if fast is not None:
+    if fast is not None and not any(k in obs for k in OPTIONAL_OBS_SHAPES):
         return fast
     if not isinstance(obs, Mapping):
         raise ValueError(f"observation must be a dict with keys {OBS_KEYS}, got {type(obs).__name__}")
     out: dict[str, np.ndarray] = {}
-    for key in OBS_KEYS:
+    for key in OBS_KEYS + tuple(k for k in OPTIONAL_OBS_SHAPES if k in obs):
         try:
             arr = np.asarray(obs[key], dtype=np.float64)
         except KeyError:
             raise ValueError(f"observation is missing key {key!r}") from None
         except (TypeError, ValueError):
             raise ValueError(f"observation[{key!r}] must be numeric, got {obs[key]!r}") from None
-        shape = OBS_SHAPES[key]
+        shape = OBS_SHAPES.get(key) or OPTIONAL_OBS_SHAPES[key]
         if arr.shape != shape:
             if arr.shape == (1,) + shape:   # a vectorised env with a single copy
                 arr = arr[0]

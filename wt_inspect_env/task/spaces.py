@@ -39,6 +39,8 @@ OBS_SHAPES: dict[str, tuple[int, ...]] = {
     "position": (3,), "velocity_body": (3,), "quaternion": (4,), "body_rates": (3,),
     "point": (3,), "normal": (3,), "point_velocity": (3,), "coverage": (1,), "progress": (1,),
 }
+#: entries an env adds on request (``structure``: EnvConfig.structure_observation) and their shapes
+OPTIONAL_OBS_SHAPES: dict[str, tuple[int, ...]] = {"structure": (4,)}
 
 
 @dataclass(frozen=True)

@@ -143,3 +143,44 @@ def test_bad_clearance_options_name_the_field():
         gym.make(ENV, clearance_limit=-1.0)
     with pytest.raises(ValueError, match="clearance"):
         gym.make(ENV, reward={"clearance": -1.0})
+
+
+def test_a_policy_check_keeps_the_structure_entry():
+    """check_observation (every policy's first step) keeps the optional ``structure`` entry, checked
+    like the others (it once dropped it: an agent trained on ``structure_body`` failed at its first
+    periodic evaluation with "needs the observation entry 'structure'")."""
+    from wt_inspect_env.policy import check_observation
+    env = gym.make(ENV, structure_observation=True)
+    try:
+        obs, _ = env.reset(seed=0)
+        out = check_observation(obs)
+        np.testing.assert_array_equal(out["structure"], np.asarray(obs["structure"], dtype=np.float64))
+        assert "structure" not in check_observation({k: v for k, v in obs.items() if k != "structure"})
+        bad = dict(obs, structure=np.zeros(3))
+        with pytest.raises(ValueError, match="structure"):
+            check_observation(bad)
+        bad = dict(obs, structure=np.array([0.0, 1.0, np.nan, 1.0]))
+        with pytest.raises(ValueError, match="structure"):
+            check_observation(bad)
+    finally:
+        env.close()
+
+
+@pytest.mark.slow
+def test_an_agent_on_the_structure_feature_trains_and_is_evaluated(tmp_path):
+    """A tiny PPO run whose features include ``structure_body`` (env structure_observation=True)
+    trains and runs its periodic evaluations on the single env."""
+    import json
+
+    from agents.recipe import Recipe, default_recipe_path
+    from agents.training import train
+    data = json.loads(default_recipe_path("ppo").read_text())
+    data["env"] = {**data["env"], "time_limit_s": 2.0, "structure_observation": True, "clearance_limit": 2.9}
+    data["eval_env"] = {"start_noise": 0.0, "time_limit_s": 1.0, "clearance_limit": None}
+    data["agent"]["features"]["groups"] = list(data["agent"]["features"]["groups"]) + ["structure_body"]
+    data["algo_kwargs"] = {**data["algo_kwargs"], "n_steps": 64, "batch_size": 64, "n_epochs": 1}
+    data["policy_kwargs"] = {**data["policy_kwargs"], "net_arch": {"pi": [8], "vf": [8]}}
+    data.update(eval_every_env_steps=500, checkpoint_every_env_steps=10_000)
+    train("ppo", "surface", 1000, 2, tmp_path, recipe=Recipe.from_dict(data), progress_bar=False)
+    evals = json.loads((tmp_path / "evaluations.json").read_text())
+    assert len(evals) >= 2 and all(0.0 <= e["mean"]["coverage"] <= 1.0 for e in evals)
