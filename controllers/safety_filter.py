@@ -111,6 +111,7 @@ from wt_inspect_env.policy import Policy
 from .rti import OCP, RTISolver, SolveStats
 from .rti.rollout import Rollout
 from .rti_policy import LSQWeights, MPCConfig, RTIPolicy, config_ocp
+from .rti_policy.clearance import stopping_distance
 
 N_PARAMS = NU + 4   # the policy's command [p, q, r, T], the stage-0 flag, the disturbance a_ext (3)
 A_EXT = slice(NU + 1, NU + 4)
@@ -252,7 +253,6 @@ class FilterMPC(RTIPolicy):
                              "(a TurbineProximity or env.mission)")
         super().__init__(config, obstacles=obstacles, **overrides)
         cfg = self.config
-        self._drag = self.body_drag(cfg)      # the model's, for the observer (model_acceleration)
         self._params = np.zeros((cfg.horizon + 1, N_PARAMS))
         self._params[:, :NU] = cfg.hover_input
         self._params[0, NU] = 1.0
@@ -278,12 +278,6 @@ class FilterMPC(RTIPolicy):
         """The model's linear drag (:func:`linear_drag`), which its clearance constraint credits."""
         return linear_drag(config)
 
-    def model_acceleration(self, state: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-        """The model's drag acceleration (world frame) at ``state`` (zero with ``model_drag`` off)."""
-        if self._drag is None:
-            return np.zeros(3)
-        return rotation @ (-self._drag * state[3:6])
-
     def _half_spaces(self, plan: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         """Three half-spaces per looked-up stage (see the module docstring): the tighter of the
         supporting half-spaces at the stage's position and the ground's; the one at its
@@ -293,7 +287,7 @@ class FilterMPC(RTIPolicy):
         pos = plan[:, 0:3]
         vel = np.einsum("qij,qj->qi", quat_to_rotmat_np(plan[:, 6:10]), plan[:, 3:6])
         speed = np.linalg.norm(vel, axis=1)
-        reach = speed * cfg.clearance_reaction + speed ** 2 / (2.0 * cfg.clearance_brake)
+        reach = speed * cfg.clearance_reaction + stopping_distance(speed, cfg.clearance_brake)
         q = len(pos)
         c0, d0, n0 = self.obstacles.closest(pos)
         # one sphere-tracing step towards the stopping point: within LOOKAHEAD_FRACTION of the
@@ -310,7 +304,7 @@ class FilterMPC(RTIPolicy):
         off = np.stack([np.einsum("ij,ij->i", n0, c0), np.zeros(q)], axis=1) + keep
         approach = np.maximum(0.0, -np.einsum("qij,qj->qi", cn, vel))
         margin = (np.einsum("qij,qj->qi", cn, pos) - off - approach * cfg.clearance_reaction
-                  - approach ** 2 / (2.0 * cfg.clearance_brake))
+                  - stopping_distance(approach, cfg.clearance_brake))
         rows = np.arange(q)
         pick = margin.argmin(axis=1)
         normals[:, 0], offsets[:, 0] = cn[rows, pick], off[rows, pick]

@@ -53,7 +53,7 @@ def clearance_ocp(ocp: OCP, config: MPCConfig, half_spaces: int = 1, disturbance
     l1, l2 = :attr:`MPCConfig.clearance_prices`),
     and ``half_spaces`` path constraints (each a half-space with its stopping distance, all relaxed
     by the one slack) on stage parameters appended to the OCP's own: [n_j (3), b_j] per half-space.
-    The MPCs keep one (the nearest surface); the safety filter adds a second (see
+    The MPCs keep one (the nearest surface); the safety filter three (see
     :mod:`controllers.safety_filter`). ``disturbance``: where the OCP's own parameters hold a
     world-frame disturbance acceleration (an observer's estimate) that the stopping distance then
     accounts for (:func:`_half_space`); None: none (the MPCs). ``drag``: the model's linear body

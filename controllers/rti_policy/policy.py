@@ -53,8 +53,9 @@ class RTIPolicy(Policy):
         self.obstacles = check_obstacles(obstacles)
         self.base_ocp = self.build_ocp(config)
         self.clearance_active = bool(config.clearance and self.obstacles is not None)
+        self._drag = self.body_drag(config)   # the model's linear drag: clearance credit, observer
         self.ocp = (clearance_ocp(self.base_ocp, config, self.clearance_half_spaces, self.clearance_disturbance,
-                                  self.body_drag(config))
+                                  self._drag)
                     if self.clearance_active else self.base_ocp)
         self._nu = self.base_ocp.nu
         if self.clearance_active:
@@ -101,15 +102,18 @@ class RTIPolicy(Policy):
         return state
 
     def body_drag(self, config: MPCConfig) -> np.ndarray | None:
-        """The linear body drag per unit mass [1/s] per axis of the OCP's model, which its clearance
-        constraint then credits to braking (None here: the MPCs' models have none)."""
+        """The linear body drag per unit mass [1/s] per axis of the OCP's model (None here: the
+        MPCs' models have none). Its clearance constraint credits it to braking, and the attitude
+        observer counts it as explained (:meth:`model_acceleration`)."""
         return None
 
     def model_acceleration(self, state: np.ndarray, rotation: np.ndarray) -> np.ndarray:
         """World-frame acceleration the OCP's model adds to gravity and thrust at ``state`` (its
-        body-to-world ``rotation`` given; e.g. a drag model; zero here): the attitude observer
-        counts it as explained."""
-        return np.zeros(3)
+        body-to-world ``rotation`` given): the drag of :meth:`body_drag`, zero without one. The
+        attitude observer counts it as explained."""
+        if self._drag is None:
+            return np.zeros(3)
+        return rotation @ (-self._drag * state[3:6])
 
     @property
     def disturbance_estimate(self) -> np.ndarray:
