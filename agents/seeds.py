@@ -3,7 +3,8 @@
 ``wt-inspect train ... --seeds 0,1,2,3,4 [--ray [--address ADDR]]`` trains one run per seed into
 ``OUT/seed_<s>/`` (each a normal run directory). A seed whose ``summary.json`` exists is done and
 skipped, one with checkpoints resumes from its latest - the resume behaviour of single runs - so an
-interrupted sweep is continued by the same command. Locally the seeds run one after another (each
+interrupted sweep is continued by the same command; so is one stopped by ``--max-minutes`` short of
+its ``--timesteps`` (a long run trained in chunks, one per call). Locally the seeds run one after another (each
 with its own progress bar); on Ray (``--ray``; a local Ray instance, or a cluster by
 ``--address``, as the evaluation backend) each seed is a task of one CPU and a bar counts the
 finished seeds. ``OUT/seeds.json`` lists, per seed, whether and when (env steps, wall time) it
@@ -56,8 +57,34 @@ def parse_seeds(text: str) -> list[int]:
 
 
 def _latest_checkpoint(run: Path) -> Path | None:
+    """The run's model with the most training: its newest checkpoint, or its final model when a
+    wall-clock stop (``--max-minutes``) saved it after the last checkpoint."""
     ckpts = sorted(run.glob("checkpoints/ckpt_*.zip"), key=lambda p: int(re.findall(r"\d+", p.stem)[-1]))
-    return ckpts[-1] if ckpts else None
+    latest = ckpts[-1] if ckpts else None
+    final = run / "model.zip"
+    if final.is_file() and final.with_suffix(".json").is_file():
+        if latest is None or _env_steps(final) > _env_steps(latest):
+            latest = final
+    return latest
+
+
+def _env_steps(model: Path) -> int:
+    """Env steps recorded in a saved model's sidecar."""
+    return int(json.loads(model.with_suffix(".json").read_text())["training"]["env_steps"])
+
+
+def seed_finished(run: Path) -> bool:
+    """A seed's run is finished when its ``summary.json`` exists and it was not stopped by the
+    wall clock short of its steps - a ``--max-minutes`` chunk of a long run is resumed by the next
+    call of the same command."""
+    path = run / "summary.json"
+    if not path.is_file():
+        return False
+    doc = json.loads(path.read_text())
+    if not doc.get("stopped_by_wall_clock"):
+        return True
+    target = doc.get("target_env_steps")
+    return target is None or int(doc["env_steps"]) >= int(target)
 
 
 def base_training(resume: str | Path | None) -> dict[str, float]:
@@ -76,8 +103,7 @@ def _one_seed(kwargs: Mapping[str, Any], seed: int, run: str, progress: bool) ->
     ckpt = _latest_checkpoint(run_dir)
     kw = dict(kwargs)
     if ckpt is not None:   # the checkpoint's steps include those of the base model a fine-tune started from
-        done = int(json.loads(ckpt.with_suffix(".json").read_text())["training"]["env_steps"])
-        done -= base_training(kw.get("resume"))["env_steps"]
+        done = _env_steps(ckpt) - base_training(kw.get("resume"))["env_steps"]
         kw["timesteps"] = max(1, int(kw["timesteps"]) - done)
         kw["resume"] = str(ckpt)
         kw["recipe"] = None
@@ -142,7 +168,7 @@ def check_seed_bases(resume: str | Path | None, seeds: Sequence[int]) -> None:
 def _unfinished(seeds: Sequence[int], out: Path,
                 kwargs: Mapping[str, Any]) -> list[tuple[Mapping[str, Any], int, Path]]:
     return [({**kwargs, "resume": seed_base(kwargs.get("resume"), s)}, s, out / f"seed_{s}")
-            for s in seeds if not (out / f"seed_{s}" / "summary.json").is_file()]
+            for s in seeds if not seed_finished(out / f"seed_{s}")]
 
 
 def _write_seed_report(seeds: Sequence[int], out: Path, train_kwargs: Mapping[str, Any]) -> dict[str, Any]:

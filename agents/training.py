@@ -501,7 +501,9 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
                     tb_log_name=algo, progress_bar=False)
         train_seconds = run.elapsed()
         eval_seconds = run.eval_time
-        final_eval = run.evaluate(model)
+        last = run.evaluations[-1] if run.evaluations else None
+        # a periodic evaluation of these very weights (a clock stop right after one) is not repeated
+        final_eval = last if last is not None and last["env_steps"] == run.env_steps else run.evaluate(model)
         final_path = run.save(model, out / "model", evaluation=final_eval)
     except KeyboardInterrupt as exc:   # Ctrl-C / SIGTERM: keep what was learnt as a resumable checkpoint
         callback._on_training_end()    # close the progress bar
@@ -520,6 +522,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     summary = {
         **run.training_info(),
         "env_steps_this_call": steps_this_call,
+        "target_env_steps": run.target_env_steps,
         "agent_decisions": int(model.num_timesteps),
         "action_repeat": rec.spec.action_repeat,
         "train_wall_time_this_call_s": round(train_seconds, 1),

@@ -163,7 +163,8 @@ def test_fine_tune_seeds_start_from_one_base_take_the_recipes_rollout_and_resume
     train_seeds([0], tmp_path / "b", **kw)
     assert params(tmp_path / "b" / "seed_0") == params(a0)
     # interrupted after its first checkpoint: the rerun trains only the rest of the stage
-    (a1 / "summary.json").unlink()
+    for f in ("summary.json", "model.zip", "model.json"):    # killed before its end: no final model
+        (a1 / f).unlink()
     step = lambda f: int(f.name.split("_")[1].split(".")[0])   # noqa: E731
     ckpts = sorted(a1.glob("checkpoints/ckpt_*"), key=step)
     first = step(ckpts[0])
@@ -174,6 +175,28 @@ def test_fine_tune_seeds_start_from_one_base_take_the_recipes_rollout_and_resume
     train_seeds([1], tmp_path / "a", **kw)
     total = json.loads((a1 / "summary.json").read_text())["env_steps"]
     assert base_steps + 600 <= total < base_steps + 600 + 2 * 16 * 4 * 2
+
+
+@pytest.mark.slow
+def test_a_seed_stopped_by_the_clock_is_resumed_from_its_final_model_by_the_same_command(tmp_path):
+    """``--max-minutes`` chunks: a seed stopped by the wall clock short of its steps is not
+    finished; the next call resumes it from its final model (saved after its last checkpoint) and
+    trains only the rest; a seed that reached its steps is finished."""
+    from agents.seeds import _latest_checkpoint, seed_finished
+    kw = dict(algo="ppo", task="surface", timesteps=1200, n_envs=2, recipe=_tiny_recipe_file(tmp_path),
+              progress_bar=False)
+    run = tmp_path / "out" / "seed_0"
+    train_seeds([0], tmp_path / "out", max_minutes=1e-4, **kw)
+    first = json.loads((run / "summary.json").read_text())
+    assert first["stopped_by_wall_clock"] and first["env_steps"] < first["target_env_steps"] == 1200
+    assert not seed_finished(run)
+    assert _latest_checkpoint(run) == run / "model.zip"
+    train_seeds([0], tmp_path / "out", **kw)
+    done = json.loads((run / "summary.json").read_text())
+    assert seed_finished(run) and not done["stopped_by_wall_clock"]
+    assert done["resumed_from"] == str(run / "model.zip")
+    assert 1200 <= done["env_steps"] < 1200 + 2 * 32 * 4 * 2
+    assert done["wall_time_s"] >= first["wall_time_s"]
 
 
 @pytest.mark.slow

@@ -47,6 +47,8 @@ from .batched_sim import BatchedQuadrotorSim, ray_mask
 
 _MAX_RAYS = 16383          # PyBullet's rayTestBatch limit per call
 _MAX_EPISODE_WINDS = 8     # per drone: distinct reset(options={"wind": ...}) fields kept
+START_CLEARANCE_MARGIN = 0.1   # [m] a noisy start keeps this much more than clearance_limit
+START_REDRAWS = 16             # noisy starts drawn before the noise-free one is taken
 
 
 def grow_to_start(lo: np.ndarray, hi: np.ndarray, start: np.ndarray, margin: float
@@ -239,6 +241,7 @@ class InspectionWorld:
         self.reference.reset(i, frac)
         s = self.reference.sample
         state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
+        state = self._clear_start(i, state, s, ep, rng)
         # Drawn after the start (so without randomisation the seeded stream is unchanged).
         r = self.randomization[i] = (None if ep.randomization is None
                                      else draw_randomization(ep.randomization, self.params, rng))
@@ -263,6 +266,25 @@ class InspectionWorld:
         self.metrics_acc.reset(i)
         self.steps[i] = 0
         self.done_time[i] = math.nan
+
+    def _clear_start(self, i: int, state: np.ndarray, s: Any, ep: Any, rng: np.random.Generator) -> np.ndarray:
+        """With ``clearance_limit`` and ``start_noise``, a start whose noise put it closer than the
+        limit plus :data:`START_CLEARANCE_MARGIN` to the structure is drawn again (up to
+        :data:`START_REDRAWS` times, then the start without noise): an episode must not begin
+        with its own end (round the hub and the blade roots the ideal poses lie little more than
+        d_min from the mesh, and noise of a few decimetres crosses the limit). Without the limit
+        nothing more is drawn, so other configurations keep their seeded streams."""
+        if self.config.clearance_limit is None or ep.start_noise <= 0:
+            return state
+        need = self.config.clearance_limit + START_CLEARANCE_MARGIN
+        field = self._structure[self.phase_index[i]]
+        for _ in range(START_REDRAWS):
+            if float(field.closest(state[None, 0:3])[1][0]) >= need:
+                return state
+            state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
+        if float(field.closest(state[None, 0:3])[1][0]) >= need:
+            return state
+        return start_state(s.ideal_position[i], s.point[i], ep.start_offset, 0.0, rng)
 
     def set_phase(self, i: int, index: int) -> None:
         """Drone ``i`` flies in the turbine geometry of mission phase ``index`` (the rotor turned)."""
