@@ -111,20 +111,27 @@ def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs:
 
 
 def run_episode(policy, env: gym.Env, seed: int) -> dict[str, Any]:
-    """One episode of a ``reset/act`` policy on a raw env; the env's final metrics and the return."""
+    """One episode of a ``reset/act`` policy on a raw env; the env's final metrics and the return,
+    and - when the env observes the structure (``structure_observation``) - the least distance to
+    it over the episode (``clearance_min_m``: what an agent that keeps d_min by itself is judged on)."""
     obs, info = env.reset(seed=seed)
     policy.reset(seed)
     total, steps = 0.0, 0
+    least = float(obs["structure"][3]) if "structure" in obs else None
     while True:
         obs, reward, terminated, truncated, info = env.step(policy.act(obs))
         total += reward
         steps += 1
+        if least is not None:
+            least = min(least, float(obs["structure"][3]))
         if terminated or truncated:
             break
     m = info["metrics"]
     out = {k: float(m[k]) for k in METRIC_KEYS}
     out.update(seed=seed, steps=steps, episode_return=total, termination=info["termination"],
                mission_complete=bool(info["mission_complete"]))
+    if least is not None:
+        out["clearance_min_m"] = least
     return out
 
 
@@ -141,6 +148,8 @@ def evaluate_policy(policy, task: str, options: Mapping[str, Any], seeds: Sequen
 def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     """Mean metrics and score (mean of min(coverage, SM)) of evaluation episodes, kept beside them."""
     mean = {k: float(np.mean([e[k] for e in episodes])) for k in (*METRIC_KEYS, "episode_return", "steps")}
+    if episodes and all("clearance_min_m" in e for e in episodes):   # the least over the episodes
+        mean["clearance_min_m"] = float(min(e["clearance_min_m"] for e in episodes))
     score = float(np.mean([min(e["coverage"], e["safety_sm"]) for e in episodes]))
     return {"mean": mean, "score": score, "episodes": episodes}
 
@@ -288,7 +297,9 @@ class TrainingRun:
         mean = result["mean"]
         print(f"[eval] env_steps={self.env_steps} wall={self.wall_time():.0f}s coverage={mean['coverage']:.3f} "
               f"SM={mean['safety_sm']:.3f} CM={mean['centering_cm']:.3f} return={mean['episode_return']:.1f} "
-              f"steps={mean['steps']:.0f}", file=sys.stderr, flush=True)
+              f"steps={mean['steps']:.0f}"
+              + (f" clearance_min={mean['clearance_min_m']:.2f}m" if "clearance_min_m" in mean else ""),
+              file=sys.stderr, flush=True)
         if result["score"] > self.best_score:
             self.best_score = result["score"]
             self.save(model, self.out / "best_model", evaluation=entry)
