@@ -179,6 +179,7 @@ def _write_seed_report(seeds: Sequence[int], out: Path, train_kwargs: Mapping[st
     doc["resumed_from"] = None if resume is None else str(resume)
     doc["recipe"] = None if train_kwargs.get("recipe") is None else str(train_kwargs["recipe"])
     write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1))
+    write_text_atomic(out / "seeds.md", seeds_markdown(out, doc))
     try:
         plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", train_kwargs.get("figure_format", "png"),
                          targets=targets, base_steps={s: b["env_steps"] for s, b in bases.items()})
@@ -301,6 +302,45 @@ def seed_report(out: Path, seeds: Sequence[int],
     shown: Any = (bases[seeds[0]] if seeds else dict(zero)) if same else {str(s): b for s, b in bases.items()}
     return {"target": dict(targets[first]), "target_name": first, "seeds": rows, "base": shown,
             "n_reached": summary[first]["n_reached"], "targets": summary}
+
+
+def _steps(n: float) -> str:
+    return f"{n / 1e6:.1f} M" if n >= 1e5 else f"{int(n):,}"
+
+
+def _pct(x: Any) -> str:
+    return "-" if x is None else f"{100.0 * float(x):.1f} %"
+
+
+def seeds_markdown(out: Path, doc: Mapping[str, Any]) -> str:
+    """The seeds report as a Markdown table the docs include: per seed its training so far (env
+    steps, wall time, whether a ``--max-minutes`` chunk left it unfinished), its last evaluation
+    (coverage, SM, CM, least clearance when recorded, how the episode ended) and when it first met
+    the headline target."""
+    lines = [f"| seed | env steps | wall time | status | coverage | SM | CM | least clearance | evaluation ended "
+             f"| {doc.get('target_name', 'target')} target met at |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in doc["seeds"]:
+        run = out / f"seed_{row['seed']}"
+        summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
+        evals = read_evaluations(run)
+        last = evals[-1] if evals else {}
+        mean = last.get("mean", {})
+        ends = sorted({str(e.get("termination") or ("complete" if e.get("mission_complete") else "time"))
+                       for e in last.get("episodes", [])})
+        status = ("running" if not summary else "unfinished (clock)" if not seed_finished(run) else "finished")
+        least = mean.get("clearance_min_m")
+        met = (f"{_steps(row['reached_at_env_steps'])} steps, {row['reached_at_wall_s'] / 60:.1f} min"
+               if row["reached_target"] else "not met")
+        lines.append(f"| {row['seed']} | {_steps(summary.get('env_steps', last.get('env_steps', 0)))} "
+                     f"| {summary.get('wall_time_s', last.get('wall_time_s', 0.0)) / 60:.1f} min | {status} "
+                     f"| {_pct(mean.get('coverage'))} | {_pct(mean.get('safety_sm'))} | {_pct(mean.get('centering_cm'))} "
+                     f"| {'-' if least is None else f'{least:.2f} m'} | {', '.join(ends) or '-'} | {met} |")
+    names = {"coverage": "coverage", "safety_sm": "SM", "centering_cm": "CM"}
+    target = ", ".join(f"{names.get(k, k)} >= {100 * v:g} %" for k, v in doc["target"].items())
+    lines += ["", f"Last periodic evaluation of each seed (the recipe's evaluation mission); "
+                  f"{doc.get('target_name', 'the')} target: {target}."]
+    return "\n".join(lines) + "\n"
 
 
 def plot_seed_curves(out: Path, seeds: Sequence[int], path: Path, fmt: str = "png",

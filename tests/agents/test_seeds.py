@@ -76,6 +76,15 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
     assert staged["seeds"][0]["targets"]["recipe"]["stage_wall_s"] == pytest.approx(0.5)
     assert doc["seeds"][1]["targets"]["mission"]["reached"] is False
     assert list(report_targets(None)) == ["mission"]
+    # the Markdown table the docs include: one row per seed, its last evaluation and when it met the target
+    from agents.seeds import seeds_markdown
+    rows = [line for line in seeds_markdown(tmp_path, doc).splitlines() if line.startswith("| ") and "---" not in line]
+    assert len(rows) == 3 and "recipe target met at" in rows[0]
+    assert rows[1].startswith("| 0 |") and "| 100.0 % | 100.0 % | 99.6 % |" in rows[1] and rows[1].endswith("| 1,000 steps, 0.0 min |")
+    assert rows[2].startswith("| 1 |") and "| 99.0 % | 91.0 % | 99.0 % |" in rows[2] and rows[2].endswith("| 2,000 steps, 0.0 min |")
+    mission = seeds_markdown(tmp_path, seed_report(tmp_path, [0, 1], {"mission": TARGET}))
+    assert "mission target met at" in mission and mission.count("| not met |") == 1
+    assert rows[1].startswith("| 0 | 2,000 | 0.0 min | running |")   # no summary.json yet: its last evaluation's steps
 
 
 @pytest.mark.parametrize("bad, match", [({"coverage": 1.5}, "recipe target coverage must be a fraction"),
@@ -191,12 +200,14 @@ def test_a_seed_stopped_by_the_clock_is_resumed_from_its_final_model_by_the_same
     assert first["stopped_by_wall_clock"] and first["env_steps"] < first["target_env_steps"] == 1200
     assert not seed_finished(run)
     assert _latest_checkpoint(run) == run / "model.zip"
+    assert "| unfinished (clock) |" in (tmp_path / "out" / "seeds.md").read_text()
     train_seeds([0], tmp_path / "out", **kw)
     done = json.loads((run / "summary.json").read_text())
     assert seed_finished(run) and not done["stopped_by_wall_clock"]
     assert done["resumed_from"] == str(run / "model.zip")
     assert 1200 <= done["env_steps"] < 1200 + 2 * 32 * 4 * 2
     assert done["wall_time_s"] >= first["wall_time_s"]
+    assert "| finished |" in (tmp_path / "out" / "seeds.md").read_text()
 
 
 @pytest.mark.slow
