@@ -10,7 +10,11 @@ each the median of several repeats after a warm-up:
 * ``learn``: ``model.learn`` of the recipe's algorithm for the same number of steps - what a
   training run really gets, including network forward passes and gradient updates.
 
-The vector figures are also printed as ratios to the subprocess ones.
+The vector figures are also printed as ratios to the subprocess ones, and ``model.learn``'s time
+is split into where it goes (summed over the timed repeats): ``env`` - stepping the agent envs
+(simulation, features, shaping, normalisation), ``policy`` - the rest of collecting the rollouts
+(the network's forward passes, the rollout buffer), ``update`` - the gradient epochs. This is what
+decides which part to make faster (the issue of a learner "as fast as the simulator allows").
 
 Steps are simulator control steps (100 Hz), so an ``action_repeat`` of k counts k per decision.
 The machine's other load is not controlled: run it on a quiet machine for comparable numbers.
@@ -31,6 +35,49 @@ from wt_inspect_env.task.env_config import TASKS
 from wt_inspect_env.util.validation import check_choice
 
 from .policy import ALGOS
+
+
+def _timed_vec_env(venv):
+    """``venv`` behind a pass-through VecEnv wrapper that adds up the wall time of its steps."""
+    from stable_baselines3.common.vec_env import VecEnvWrapper
+
+    class TimedVecEnv(VecEnvWrapper):
+        def __init__(self) -> None:
+            super().__init__(venv)
+            self.seconds = 0.0
+
+        def reset(self):
+            return self.venv.reset()
+
+        def step_wait(self):
+            t = time.perf_counter()
+            out = self.venv.step_wait()
+            self.seconds += time.perf_counter() - t
+            return out
+
+    return TimedVecEnv()
+
+
+def _phase_callback():
+    """A callback adding up the wall time ``model.learn`` spends collecting rollouts."""
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Phases(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__(verbose=0)
+            self.rollout = 0.0
+            self._t = 0.0
+
+        def _on_rollout_start(self) -> None:
+            self._t = time.perf_counter()
+
+        def _on_rollout_end(self) -> None:
+            self.rollout += time.perf_counter() - self._t
+
+        def _on_step(self) -> bool:
+            return True
+
+    return Phases()
 
 
 def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: int = 20_000,
@@ -75,13 +122,21 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
         if algo == "ppo":   # one update per repeat at least
             kw["n_steps"] = min(int(kw.get("n_steps", 2048)), decisions)
             kw["batch_size"] = min(int(kw.get("batch_size", 64)), kw["n_steps"] * n_envs)
-        model = algo_class(algo)("MlpPolicy", venv, seed=seed, device="cpu",
+        timed = _timed_vec_env(venv)
+        model = algo_class(algo)("MlpPolicy", timed, seed=seed, device="cpu",
                                  policy_kwargs=_policy_kwargs(rec), **kw)
+        split = {"env": 0.0, "rollout": 0.0, "total": 0.0}
         for rep in range(repeats + 1):
+            phases = _phase_callback()
+            env0 = timed.seconds
             t0 = time.perf_counter()
-            model.learn(total_timesteps=decisions * n_envs, reset_num_timesteps=False)
+            model.learn(total_timesteps=decisions * n_envs, reset_num_timesteps=False, callback=phases)
+            dt = time.perf_counter() - t0
             if rep > 0:
-                learn_rates.append(decisions * n_envs * k / (time.perf_counter() - t0))
+                learn_rates.append(decisions * n_envs * k / dt)
+                split["env"] += timed.seconds - env0
+                split["rollout"] += phases.rollout
+                split["total"] += dt
     finally:
         venv.close()
     return {
@@ -92,6 +147,9 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
         "learn_steps_per_s": statistics.median(learn_rates),
         "learn_steps_per_s_min": min(learn_rates), "learn_steps_per_s_max": max(learn_rates),
         "minutes_per_2M_steps": 2e6 / statistics.median(learn_rates) / 60.0,
+        "learn_time_split": {"env": split["env"] / split["total"],
+                             "policy": (split["rollout"] - split["env"]) / split["total"],
+                             "update": (split["total"] - split["rollout"]) / split["total"]},
         "cpus": os.cpu_count(), "torch_threads": rec.torch_threads,
         "load_average": os.getloadavg()[0],
     }
@@ -129,6 +187,10 @@ def main(argv: list[str], prog: str = "wt-inspect bench train") -> int:
         print(f"  {label:22} {r['vecenv_steps_per_s']:14.0f} {r['learn_steps_per_s']:12.0f} "
               f"{r['minutes_per_2M_steps']:13.1f}")
     print(f"  ratio vector / subprocess: vec env {out['vecenv_ratio']:.2f}x, learn {out['learn_ratio']:.2f}x")
+    for label, r in (("vector", vec), ("subprocess", ref)):
+        sp = r["learn_time_split"]
+        print(f"  model.learn time, {label}: env {100 * sp['env']:.0f} %, policy (forward, buffer) "
+              f"{100 * sp['policy']:.0f} %, update {100 * sp['update']:.0f} %")
     print(f"  (cpus {vec['cpus']}, load average {vec['load_average']:.2f})")
     return 0
 
