@@ -305,6 +305,10 @@ def test_display_names():
     from wt_inspect.evaluation.registry import display_name
     assert display_name("ppo:agents/models/ppo_blade_wind_mix.zip") == "PPO (ppo_blade_wind_mix)"
     assert display_name("vtnmpc-plus") == "VT-NMPC+" and display_name("custom") == "custom"
+    # the seeds of a training study share their file names: their folders tell them apart
+    seeds = [display_name(f"ppo:runs/s/seed_{i}/best_model.zip") for i in (0, 1)]
+    assert seeds == ["PPO (seed_0/best_model)", "PPO (seed_1/best_model)"]
+    assert display_name("ppo:runs/s/seed_0/model.zip+filter") == "PPO (seed_0/model) + filter"
 
 
 def test_results_md_names_the_turbine_and_drone_given_over_the_scenario():

@@ -213,4 +213,18 @@ def display_name(name: str) -> str:
     shown = entry.display_name or key
     if not (sep and arg):
         return shown
-    return f"{shown} ({entry.label(arg) if entry.label is not None else Path(arg).stem})"
+    return f"{shown} ({entry.label(arg) if entry.label is not None else _argument_label(arg)})"
+
+
+#: file stems every training run writes (``OUT/model.zip``, ``OUT/best_model.zip``): alone they
+#: would give several runs' models one table name
+GENERIC_STEMS = ("model", "best_model")
+
+
+def _argument_label(arg: str) -> str:
+    """A file argument's table name: its stem, with its folder for a generic stem
+    (``seed_0/best_model``), so the seeds of one study get a column each."""
+    path = Path(arg)
+    if path.stem in GENERIC_STEMS and path.parent.name:
+        return f"{path.parent.name}/{path.stem}"
+    return path.stem
