@@ -334,7 +334,8 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any]) -> str:
                if row["reached_target"] else "not met")
         lines.append(f"| {row['seed']} | {_steps(summary.get('env_steps', last.get('env_steps', 0)))} "
                      f"| {summary.get('wall_time_s', last.get('wall_time_s', 0.0)) / 60:.1f} min | {status} "
-                     f"| {_pct(mean.get('coverage'))} | {_pct(mean.get('safety_sm'))} | {_pct(mean.get('centering_cm'))} "
+                     f"| {_pct(mean.get('coverage'))} | {_pct(mean.get('safety_sm'))} "
+                     f"| {_pct(mean.get('centering_cm'))} "
                      f"| {'-' if least is None else f'{least:.2f} m'} | {', '.join(ends) or '-'} | {met} |")
     names = {"coverage": "coverage", "safety_sm": "SM", "centering_cm": "CM"}
     target = ", ".join(f"{names.get(k, k)} >= {100 * v:g} %" for k, v in doc["target"].items())

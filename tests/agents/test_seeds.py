@@ -80,8 +80,10 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
     from agents.seeds import seeds_markdown
     rows = [line for line in seeds_markdown(tmp_path, doc).splitlines() if line.startswith("| ") and "---" not in line]
     assert len(rows) == 3 and "recipe target met at" in rows[0]
-    assert rows[1].startswith("| 0 |") and "| 100.0 % | 100.0 % | 99.6 % |" in rows[1] and rows[1].endswith("| 1,000 steps, 0.0 min |")
-    assert rows[2].startswith("| 1 |") and "| 99.0 % | 91.0 % | 99.0 % |" in rows[2] and rows[2].endswith("| 2,000 steps, 0.0 min |")
+    assert rows[1].startswith("| 0 |") and "| 100.0 % | 100.0 % | 99.6 % |" in rows[1]
+    assert rows[1].endswith("| 1,000 steps, 0.0 min |")
+    assert rows[2].startswith("| 1 |") and "| 99.0 % | 91.0 % | 99.0 % |" in rows[2]
+    assert rows[2].endswith("| 2,000 steps, 0.0 min |")
     mission = seeds_markdown(tmp_path, seed_report(tmp_path, [0, 1], {"mission": TARGET}))
     assert "mission target met at" in mission and mission.count("| not met |") == 1
     assert rows[1].startswith("| 0 | 2,000 | 0.0 min | running |")   # no summary.json yet: its last evaluation's steps
