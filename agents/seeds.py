@@ -70,21 +70,30 @@ def _latest_checkpoint(run: Path) -> Path | None:
 
 def _env_steps(model: Path) -> int:
     """Env steps recorded in a saved model's sidecar."""
-    return int(json.loads(model.with_suffix(".json").read_text())["training"]["env_steps"])
+    from .policy import load_sidecar
+    return int(load_sidecar(model)["training"]["env_steps"])
 
 
-def seed_finished(run: Path) -> bool:
-    """A seed's run is finished when its ``summary.json`` exists and it was not stopped by the
-    wall clock short of its steps - a ``--max-minutes`` chunk of a long run is resumed by the next
-    call of the same command."""
+def _read_summary(run: Path) -> dict[str, Any] | None:
     path = run / "summary.json"
-    if not path.is_file():
+    return json.loads(path.read_text()) if path.is_file() else None
+
+
+def _summary_finished(doc: Mapping[str, Any] | None) -> bool:
+    """A run with this ``summary.json`` (None: none yet) is finished: it exists and the run was not
+    stopped by the wall clock short of its steps - a ``--max-minutes`` chunk of a long run is
+    resumed by the next call of the same command."""
+    if doc is None:
         return False
-    doc = json.loads(path.read_text())
     if not doc.get("stopped_by_wall_clock"):
         return True
     target = doc.get("target_env_steps")
     return target is None or int(doc["env_steps"]) >= int(target)
+
+
+def seed_finished(run: Path) -> bool:
+    """Whether the seed's run in ``run`` is finished (:func:`_summary_finished`)."""
+    return _summary_finished(_read_summary(run))
 
 
 def base_training(resume: str | Path | None) -> dict[str, float]:
@@ -92,8 +101,8 @@ def base_training(resume: str | Path | None) -> dict[str, float]:
     fine-tune stage); zeros when the seeds train from scratch."""
     if resume is None:
         return {"env_steps": 0, "wall_time_s": 0.0}
-    from .policy import load_sidecar, sidecar_paths
-    training = load_sidecar(sidecar_paths(resume)[0]).get("training", {})
+    from .policy import load_sidecar
+    training = load_sidecar(resume).get("training", {})
     return {"env_steps": int(training.get("env_steps", 0)), "wall_time_s": float(training.get("wall_time_s", 0.0))}
 
 
@@ -322,13 +331,14 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|"]
     for row in doc["seeds"]:
         run = out / f"seed_{row['seed']}"
-        summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
+        found = _read_summary(run)
+        summary = found or {}
         evals = read_evaluations(run)
         last = evals[-1] if evals else {}
         mean = last.get("mean", {})
         ends = sorted({str(e.get("termination") or ("complete" if e.get("mission_complete") else "time"))
                        for e in last.get("episodes", [])})
-        status = ("running" if not summary else "unfinished (clock)" if not seed_finished(run) else "finished")
+        status = ("running" if found is None else "finished" if _summary_finished(found) else "unfinished (clock)")
         least = mean.get("clearance_min_m")
         met = (f"{_steps(row['reached_at_env_steps'])} steps, {row['reached_at_wall_s'] / 60:.1f} min"
                if row["reached_target"] else "not met")

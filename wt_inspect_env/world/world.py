@@ -278,13 +278,15 @@ class InspectionWorld:
             return state
         need = self.config.clearance_limit + START_CLEARANCE_MARGIN
         field = self._structure[self.phase_index[i]]
+
+        def clear(st: np.ndarray) -> bool:
+            return float(field.closest(st[None, 0:3])[1][0]) >= need
+
         for _ in range(START_REDRAWS):
-            if float(field.closest(state[None, 0:3])[1][0]) >= need:
+            if clear(state):
                 return state
             state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
-        if float(field.closest(state[None, 0:3])[1][0]) >= need:
-            return state
-        return start_state(s.ideal_position[i], s.point[i], ep.start_offset, 0.0, rng)
+        return state if clear(state) else start_state(s.ideal_position[i], s.point[i], ep.start_offset, 0.0, rng)
 
     def set_phase(self, i: int, index: int) -> None:
         """Drone ``i`` flies in the turbine geometry of mission phase ``index`` (the rotor turned)."""
