@@ -381,7 +381,8 @@ class TrainingInterrupted(KeyboardInterrupt):
 
 
 def _build_model(cls, algo: str, rec: Recipe, venv, *, resume, ckpt_doc, recipe, trust_model: bool, seed: int,
-                 verbose: int, tb: str, use_norm: bool, norm: Mapping[str, Any], gamma: float, legacy: Path | None):
+                 verbose: int, tb: str | None, use_norm: bool, norm: Mapping[str, Any], gamma: float,
+                 legacy: Path | None):
     """The model (new, or loaded from ``resume``) and its VecNormalize around ``venv``; writes nothing."""
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -410,35 +411,12 @@ def _build_model(cls, algo: str, rec: Recipe, venv, *, resume, ckpt_doc, recipe,
     return model, vecnorm, venv
 
 
-def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
-          recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
-          max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
-          backend: str = "vector", trust_model: bool = False, figure_format: str = "png",
-          eval_every: int | None = None) -> dict[str, Any]:
-    """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
-
-    ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
-    :class:`Recipe`, or None for ``agents/recipes/<algo>_surface.json`` (or, when resuming, the
-    checkpoint's recipe). ``resume``: a checkpoint/model ``.zip`` saved by a run (its sidecar and
-    VecNormalize statistics are read from beside it). ``max_minutes``: stop early (and save) once
-    this much wall time has passed in this call. ``trust_model``: resume from a checkpoint even if
-    loading it runs code from it (a zip that needs unpickling, or an old ``.vecnormalize.pkl``);
-    without it such a checkpoint is a ValueError before anything is written. ``figure_format``: of
-    the learning curve (png, pdf, svg). ``eval_every``: simulator steps between the periodic
-    evaluations, overriding the recipe's ``eval_every_env_steps`` (a study over seeds wants a denser
-    learning curve than a production run; the policy's training does not depend on it) - the run's
-    ``recipe.json`` records the value used.
-    """
-    check_choice("algorithm", algo, ALGOS)
-    check_figure_format(figure_format)
-    check_choice("task", task, TASKS)
-    check_choice("backend", backend, BACKENDS)
-    timesteps = _positive_int("timesteps", timesteps)
-    n_envs = _positive_int("n_envs", n_envs)
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    if max_minutes is not None and not (isinstance(max_minutes, (int, float)) and max_minutes > 0):
-        raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
+def resolve_run(algo: str, *, recipe: str | Path | Recipe | None, resume: str | Path | None,
+                trust_model: bool, eval_every: int | None = None) -> tuple[Recipe, dict | None, Path | None]:
+    """The recipe a run trains with, the resumed checkpoint's sidecar (None: a new model) and the
+    path of its legacy pickled statistics (None: a new model); checks the checkpoint before
+    anything is built (a missing file, another algorithm, statistics that need unpickling without
+    ``trust_model``, an agent spec the recipe changes) - see :func:`train`."""
     ckpt_doc = None
     if resume is not None:
         zip_path, _, norm_path = sidecar_paths(resume)
@@ -473,7 +451,40 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     if ckpt_doc is not None and AgentSpec.from_dict(ckpt_doc["spec"]) != rec.spec:
         raise ValueError("the recipe's agent spec differs from the checkpoint's (features/action/repeat "
                          "must stay the same to resume)")
+    return rec, ckpt_doc, (legacy if ckpt_doc is not None else None)
 
+
+def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
+          recipe: str | Path | Recipe | None = None, resume: str | Path | None = None, seed: int = 0,
+          max_minutes: float | None = None, progress_bar: bool = True, verbose: int = 0,
+          backend: str = "vector", trust_model: bool = False, figure_format: str = "png",
+          eval_every: int | None = None) -> dict[str, Any]:
+    """Train (or resume) an agent; returns the run summary (also written to ``out/summary.json``).
+
+    ``timesteps``: simulator control steps to train *in this call*. ``recipe``: a path, a
+    :class:`Recipe`, or None for ``agents/recipes/<algo>_surface.json`` (or, when resuming, the
+    checkpoint's recipe). ``resume``: a checkpoint/model ``.zip`` saved by a run (its sidecar and
+    VecNormalize statistics are read from beside it). ``max_minutes``: stop early (and save) once
+    this much wall time has passed in this call. ``trust_model``: resume from a checkpoint even if
+    loading it runs code from it (a zip that needs unpickling, or an old ``.vecnormalize.pkl``);
+    without it such a checkpoint is a ValueError before anything is written. ``figure_format``: of
+    the learning curve (png, pdf, svg). ``eval_every``: simulator steps between the periodic
+    evaluations, overriding the recipe's ``eval_every_env_steps`` (a study over seeds wants a denser
+    learning curve than a production run; the policy's training does not depend on it) - the run's
+    ``recipe.json`` records the value used.
+    """
+    check_choice("algorithm", algo, ALGOS)
+    check_figure_format(figure_format)
+    check_choice("task", task, TASKS)
+    check_choice("backend", backend, BACKENDS)
+    timesteps = _positive_int("timesteps", timesteps)
+    n_envs = _positive_int("n_envs", n_envs)
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if max_minutes is not None and not (isinstance(max_minutes, (int, float)) and max_minutes > 0):
+        raise ValueError(f"max_minutes must be positive, got {max_minutes!r}")
+    rec, ckpt_doc, legacy = resolve_run(algo, recipe=recipe, resume=resume, trust_model=trust_model,
+                                        eval_every=eval_every)
     import torch
 
     torch.set_num_threads(rec.torch_threads)
@@ -490,7 +501,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
         model, vecnorm, venv = _build_model(cls, algo, rec, venv, resume=resume, ckpt_doc=ckpt_doc, recipe=recipe,
                                             trust_model=trust_model, seed=seed, verbose=verbose, tb=str(out / "tb"),
                                             use_norm=use_norm, norm=norm, gamma=gamma,
-                                            legacy=legacy if ckpt_doc is not None else None)
+                                            legacy=legacy)
     except BaseException:
         venv.close()
         raise

@@ -21,8 +21,10 @@ The runs of a study are those its commands would fly, planned from the commands 
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
 ``study safety-filter`` / ``study pose-sweep`` fly runs here, and ``tune`` its first trial (the
 controller's own weights). ``study planner-clearance`` flies nothing but plans: its digest is the
-stand-off path of its first and last turbine (poses at 21 evenly spaced samples). A study whose
-commands fly nothing (training, analyses) has no digest; its staleness is decided by the code
+stand-off path of its first and last turbine (poses at 21 evenly spaced samples). ``train`` (PPO on
+the vector env) digests the first update of its first and last seed (:mod:`agents.digest`: the
+rollout, the reward, the update's statistics and the updated policy's actions). A study whose
+commands fly nothing (analyses, cloning) has no digest; its staleness is decided by the code
 version as before.
 """
 from __future__ import annotations
@@ -46,8 +48,9 @@ TOLERANCE = 2e-3
 class StudyRun:
     """One run a study's command flies: how to fly it (``runner``: ``"evaluate"`` for the
     harness's :func:`~wt_inspect.evaluation.runner.execute`, ``"campaign"`` for a campaign
-    episode, ``"adversary"`` for a flight of ``wt-inspect study safety-filter``) and its spec (a
-    RunSpec, or the adversarial flight's plain dict)."""
+    episode, ``"adversary"`` for a flight of ``wt-inspect study safety-filter``, ``"planner"`` for a
+    planned path, ``"train"`` for a training run's first update) and its spec (a RunSpec, or a plain
+    dict for the others)."""
 
     runner: str
     spec: Any
@@ -57,6 +60,8 @@ class StudyRun:
         s = self.spec
         if isinstance(s, Mapping) and self.runner == "planner":
             return f"planned turbine {s['episode']} ({s['turbine']})"
+        if isinstance(s, Mapping) and self.runner == "train":
+            return f"training {s['recipe'] or 'default recipe'} seed {s['seed']} (first update)"
         if isinstance(s, Mapping):
             return f"adversarial start {s['start']}{' filtered' if s['filtered'] else ''}"
         return f"{s.scenario} {s.controller} wind {s.wind:g} seed {s.seed}"
@@ -79,13 +84,19 @@ def digest(t: np.ndarray, position: np.ndarray, velocity: np.ndarray, seconds: f
             "velocity": np.round(np.asarray(velocity, dtype=float)[idx], DECIMALS).tolist()}
 
 
+#: units of the digested quantities, for the reader of a difference
+_UNITS = {"position": " m", "velocity": " m/s"}
+
+
 def compare(recorded: Mapping[str, Any], flown: Mapping[str, Any], tolerance: float = TOLERANCE) -> str:
     """Why two digests differ ("" when they agree): sample count, time or a state beyond
     ``tolerance``, naming the first sample that differs and by how much."""
     n_rec, n_flown = len(recorded.get("t", [])), len(flown.get("t", []))
     if n_rec != n_flown:
         return f"{n_flown} samples flown, {n_rec} recorded (the run ends elsewhere)"
-    for key in ("position", "velocity"):
+    for key in [k for k in recorded if k != "t"]:
+        if key not in flown:
+            return f"{key}: recorded, not produced"
         a, b = np.asarray(recorded[key], dtype=float), np.asarray(flown[key], dtype=float)
         if a.shape != b.shape:
             return f"{key}: shape {b.shape} flown, {a.shape} recorded"
@@ -95,9 +106,10 @@ def compare(recorded: Mapping[str, Any], flown: Mapping[str, Any], tolerance: fl
         bad = np.flatnonzero(~(err <= tolerance))
         if len(bad):
             k = int(bad[0])
-            unit = "m" if key == "position" else "m/s"
-            return (f"{key} at t = {recorded['t'][k]:g} s differs by {err[k]:.4g} {unit} "
-                    f"(tolerance {tolerance:g}; largest {np.nanmax(err):.4g} {unit})")
+            unit = _UNITS.get(key, "")
+            at = f" at t = {recorded['t'][k]:g} s" if k < len(recorded.get("t", [])) else ""
+            return (f"{key}{at} differs by {err[k]:.4g}{unit} "
+                    f"(tolerance {tolerance:g}; largest {np.nanmax(err):.4g}{unit})")
     return ""
 
 
@@ -158,9 +170,25 @@ def _tune_runs(argv: Sequence[str]) -> list[StudyRun]:
                                                          max_time=a.max_time)]
 
 
+def _train_runs(argv: Sequence[str]) -> list[StudyRun]:
+    """``wt-inspect train --algo ppo`` on the vector backend: one run per recipe and seed, each
+    digested by its first update (:mod:`agents.digest`); cloning and DAgger runs have no digest."""
+    from agents.seeds import parse_seeds
+    from agents.train_cli import build_parser
+    a = build_parser("wt-inspect train").parse_args(list(argv))
+    if a.algo != "ppo" or a.backend != "vector" or a.timesteps is None:
+        return []
+    recipes = [r.strip() for r in str(a.recipe).split(",") if r.strip()] if a.recipe else [None]
+    seeds = parse_seeds(a.seeds) if a.seeds is not None else [a.seed]
+    return [StudyRun("train", {"algo": a.algo, "task": a.task or "surface", "n_envs": a.n_envs,
+                               "timesteps": a.timesteps, "recipe": r, "seed": s, "trust_model": a.trust_model,
+                               "resume": None if a.resume is None else a.resume.replace("{seed}", str(s))})
+            for r in recipes for s in seeds]
+
+
 _PLANNERS: dict[str, Callable[[Sequence[str]], list[StudyRun]]] = {
     "evaluate": _evaluate_runs, "campaign": _campaign_runs, "ablation": _ablation_runs, "study": _study_runs,
-    "tune": _tune_runs}
+    "tune": _tune_runs, "train": _train_runs}
 
 
 def study_runs(commands: Sequence[str]) -> list[StudyRun]:
@@ -189,6 +217,9 @@ def digested_runs(commands: Sequence[str]) -> list[StudyRun]:
 def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
     """Fly the first ``seconds`` of ``run`` with the current code (no file written) and return
     its digest. ValueError if the run raised (a campaign episode reports it in its result)."""
+    if run.runner == "train":
+        from agents.digest import first_update_digest
+        return first_update_digest(**run.spec)
     if run.runner == "adversary":
         from .studies.safety_filter import trajectory
         return digest(*trajectory(run.spec, seconds), seconds)
@@ -211,7 +242,7 @@ def fly_prefix(run: StudyRun, seconds: float = SECONDS) -> dict[str, Any]:
         from .evaluation.runner import execute
         res = execute(spec, record=True)
     else:
-        raise ValueError(f"unknown runner {run.runner!r}; known: adversary, campaign, evaluate, planner")
+        raise ValueError(f"unknown runner {run.runner!r}; known: adversary, campaign, evaluate, planner, train")
     a = res.arrays
     return digest(a["t"], a["position"], a["velocity_body"], seconds)
 
