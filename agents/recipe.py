@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -34,16 +35,25 @@ def _check_env_options(options: Mapping[str, Any]) -> None:
 
 
 TARGET_METRICS: tuple[str, ...] = ("coverage", "safety_sm", "centering_cm")
+#: distances a target may also ask for [m]: the least clearance to the structure over the
+#: evaluation (recorded when the env observes the structure) - an agent meant to keep d_min by
+#: itself is not done when it only covers the blade
+TARGET_DISTANCES: tuple[str, ...] = ("clearance_min_m",)
 
 
 def check_target(target: Any, name: str = "recipe target") -> dict[str, float]:
-    """``{metric: threshold}`` over :data:`TARGET_METRICS`, each a fraction in (0, 1]."""
+    """``{metric: threshold}`` over :data:`TARGET_METRICS` (fractions in (0, 1]) and
+    :data:`TARGET_DISTANCES` (positive finite metres)."""
     if not isinstance(target, Mapping) or not target:
         raise ValueError(f"{name} must be a non-empty dict of metric thresholds, got {target!r}")
-    check_unknown_options(name, target.keys(), TARGET_METRICS)
+    check_unknown_options(name, target.keys(), TARGET_METRICS + TARGET_DISTANCES)
     out = {}
     for k, v in target.items():
-        if isinstance(v, (bool, str)) or not isinstance(v, (int, float)) or not 0.0 < v <= 1.0:
+        number = not isinstance(v, (bool, str)) and isinstance(v, (int, float))
+        if k in TARGET_DISTANCES:
+            if not number or not math.isfinite(v) or v <= 0.0:
+                raise ValueError(f"{name} {k} must be a positive distance in metres, got {v!r}")
+        elif not number or not 0.0 < v <= 1.0:
             raise ValueError(f"{name} {k} must be a fraction in (0, 1], got {v!r}")
         out[k] = float(v)
     return out
@@ -71,9 +81,10 @@ class Recipe:
     eval_every_env_steps / eval_episodes / checkpoint_every_env_steps: in simulator control steps.
     torch_threads: intra-op threads of the learner (1 leaves the other core to the env workers).
     target: the recipe's own acceptance thresholds on the periodic evaluation's means (keys of
-        ``TARGET_METRICS``, fractions in (0, 1]) - a stage of a curriculum is judged by what it is
-        for (a surface stage by coverage and SM); the seeds report shows it beside the full-mission
-        target of :data:`agents.seeds.TARGET`. None: that target only.
+        ``TARGET_METRICS``, fractions in (0, 1], or ``TARGET_DISTANCES`` in metres) - a stage of a
+        curriculum is judged by what it is for (a surface stage by coverage and SM); the seeds
+        report shows it beside the full-mission target of :data:`agents.seeds.TARGET`. None: that
+        target only.
     """
 
     algo: str = "ppo"

@@ -132,6 +132,7 @@ def run_episode(policy, env: gym.Env, seed: int) -> dict[str, Any]:
                mission_complete=bool(info["mission_complete"]))
     if least is not None:
         out["clearance_min_m"] = least
+        out["d_min_m"] = float(env.unwrapped.config.d_min)
     return out
 
 
@@ -146,12 +147,23 @@ def evaluate_policy(policy, task: str, options: Mapping[str, Any], seeds: Sequen
 
 
 def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
-    """Mean metrics and score (mean of min(coverage, SM)) of evaluation episodes, kept beside them."""
+    """Mean metrics and score (mean of :func:`episode_score`) of evaluation episodes, kept beside them."""
     mean = {k: float(np.mean([e[k] for e in episodes])) for k in (*METRIC_KEYS, "episode_return", "steps")}
     if episodes and all("clearance_min_m" in e for e in episodes):   # the least over the episodes
         mean["clearance_min_m"] = float(min(e["clearance_min_m"] for e in episodes))
-    score = float(np.mean([min(e["coverage"], e["safety_sm"]) for e in episodes]))
+    score = float(np.mean([episode_score(e) for e in episodes]))
     return {"mean": mean, "score": score, "episodes": episodes}
+
+
+def episode_score(episode: Mapping[str, Any]) -> float:
+    """What the best model is chosen by: ``min(coverage, SM)``, and when the episode recorded its
+    least clearance (the env observes the structure), also that clearance as a share of d_min - a
+    pass below d_min costs its shortfall, so the best model of a recipe that must keep its distance
+    by itself is not one that covers the blade by passing too close."""
+    score = min(episode["coverage"], episode["safety_sm"])
+    if "clearance_min_m" in episode and "d_min_m" in episode:
+        score = min(score, episode["clearance_min_m"] / episode["d_min_m"])
+    return float(score)
 
 
 def _policy_from_model(model, spec: AgentSpec, vecnormalize, env_like) -> SB3Policy:

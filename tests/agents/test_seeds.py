@@ -91,12 +91,32 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
 
 @pytest.mark.parametrize("bad, match", [({"coverage": 1.5}, "recipe target coverage must be a fraction"),
                                         ({"coverage": "0.9"}, "recipe target coverage must be a fraction"),
+                                        ({"clearance_min_m": 0.0}, "clearance_min_m must be a positive distance"),
+                                        ({"clearance_min_m": float("inf")}, "clearance_min_m must be a positive"),
                                         ({"speed": 0.9}, "speed"), ({}, "non-empty dict")])
 def test_recipe_target_is_checked(bad, match):
     data = json.loads(default_recipe_path("ppo").read_text())
     with pytest.raises(ValueError, match=match):
         Recipe.from_dict({**data, "target": bad})
     assert Recipe.from_dict({**data, "target": {"coverage": 0.9}}).target == {"coverage": 0.9}
+    assert Recipe.from_dict({**data, "target": {"clearance_min_m": 2.9}}).target == {"clearance_min_m": 2.9}
+
+
+def test_a_clearance_target_needs_the_recorded_clearance_and_the_best_model_pays_for_a_close_pass():
+    from agents.training import episode_score, summarize_episodes
+    target = {"coverage": 0.99, "clearance_min_m": 2.9}
+    assert reached({"mean": {"coverage": 1.0, "clearance_min_m": 2.95}}, target)
+    assert not reached({"mean": {"coverage": 1.0, "clearance_min_m": 2.5}}, target)
+    assert not reached({"mean": {"coverage": 1.0}}, target)          # not recorded: not met
+    close = {"coverage": 1.0, "safety_sm": 0.995, "clearance_min_m": 2.4, "d_min_m": 3.0}
+    clear = {"coverage": 1.0, "safety_sm": 0.96, "clearance_min_m": 3.1, "d_min_m": 3.0}
+    assert episode_score(close) == pytest.approx(0.8) and episode_score(clear) == pytest.approx(0.96)
+    assert episode_score({"coverage": 0.7, "safety_sm": 0.9}) == pytest.approx(0.7)   # no structure observed
+    from agents.training import METRIC_KEYS as keys
+    eps = [{**dict.fromkeys(keys, 1.0), **close, "episode_return": 1.0, "steps": 1},
+           {**dict.fromkeys(keys, 1.0), **clear, "episode_return": 1.0, "steps": 1}]
+    out = summarize_episodes(eps)
+    assert out["score"] == pytest.approx(0.88) and out["mean"]["clearance_min_m"] == pytest.approx(2.4)
 
 
 def test_each_seed_can_start_from_its_own_base_and_the_report_counts_its_own_stage(tmp_path):
