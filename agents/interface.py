@@ -19,8 +19,13 @@ import numpy as np
 from wt_inspect_env.physics.dynamics import quat_to_rotmat_np
 from wt_inspect_env.task.spaces import ActionScaling
 
-#: feature groups that need an optional observation entry: group -> (entry, the env option that adds it)
-NEEDS_OPTION: dict[str, tuple[str, str]] = {"structure_body": ("structure", "structure_observation=True")}
+#: feature groups that need an optional observation entry: group -> (entry, the boolean env option that adds it)
+NEEDS_OPTION: dict[str, tuple[str, str]] = {"structure_body": ("structure", "structure_observation")}
+
+
+def needed_env_options(groups: Any) -> dict[str, bool]:
+    """The env options (``{option: True}``) that the feature ``groups`` need."""
+    return {NEEDS_OPTION[g][1]: True for g in groups if g in NEEDS_OPTION}
 
 
 def check_entries(groups: Any, keys: Any) -> None:
@@ -29,7 +34,7 @@ def check_entries(groups: Any, keys: Any) -> None:
     for g in groups:
         if g in NEEDS_OPTION and NEEDS_OPTION[g][0] not in keys:
             raise ValueError(f"feature group {g!r} needs the observation entry {NEEDS_OPTION[g][0]!r}: "
-                             f"make the env with {NEEDS_OPTION[g][1]}")
+                             f"make the env with {NEEDS_OPTION[g][1]}=True")
 
 
 def camera_heading(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[float, float]:

@@ -55,6 +55,19 @@ def model_fingerprint(path: str) -> str:
     return "sha256=" + h.hexdigest()[:16]
 
 
+def model_env_options(path: str) -> dict[str, Any]:
+    """The env options a saved agent needs (:func:`agents.interface.needed_env_options` of its
+    feature groups); none when its sidecar cannot be read (the entry's ``check`` reports that)."""
+    from .interface import needed_env_options
+    from .policy import load_sidecar
+    try:
+        doc = load_sidecar(resolve_model_path(path))
+        groups = doc["spec"]["features"]["groups"]
+    except (ValueError, KeyError, TypeError):
+        return {}
+    return needed_env_options(groups)
+
+
 def _loader(algo: str):
     def load(env: Any, path: str, trust_model: bool = False) -> Any:
         """Load ``path`` for ``env``; a missing optional dependency is a one-line ValueError."""
@@ -73,4 +86,5 @@ def _loader(algo: str):
 
 ppo = PolicyEntry(_loader("ppo"), "a saved stable-baselines3 PPO model (ppo:PATH.zip or ppo:NAME of a shipped model)",
                   display_name="PPO",
-                  takes_argument=True, check=_check("ppo"), fingerprint=model_fingerprint, trust_option=True)
+                  takes_argument=True, check=_check("ppo"), fingerprint=model_fingerprint, trust_option=True,
+                  env_options=model_env_options)

@@ -143,7 +143,10 @@ class PolicyEntry:
     is a different run. An entry with ``optional_argument`` (the argument's form for help, e.g.
     ``"weights=FILE"``) works both plain (``factory(env)``) and as ``NAME:ARG`` (``factory(env, arg)``,
     with ``check`` and ``fingerprint`` as above); ``label(arg)``, if given, is how a results table names
-    the argument (default: the stem of a file path). An entry with ``trust_option`` loads files
+    the argument (default: the stem of a file path); ``env_options(arg)``, if given, the env options
+    the policy needs for that argument (an agent that observes the structure needs
+    ``structure_observation=True``), which the evaluation harness adds to the runs' env unless the
+    user set them. An entry with ``trust_option`` loads files
     that might carry code: its
     ``factory`` and ``check`` take the keyword ``trust_model`` and run code from such a file only
     when it is True (the user's explicit ``--trust-model``); otherwise they refuse it.
@@ -158,6 +161,7 @@ class PolicyEntry:
     trust_option: bool = False
     optional_argument: str | None = None
     label: Callable[[str], str] | None = None
+    env_options: Callable[[str], Mapping[str, Any]] | None = None
 
     def __post_init__(self) -> None:
         if not callable(self.factory):

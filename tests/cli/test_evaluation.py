@@ -369,3 +369,17 @@ def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
     assert res.mission_complete and [e["action"] for e in res.stall_log] == ["paced"]
     assert res.stall_log[0]["why"].startswith("behind the schedule")
     assert {"stalls", "skipped_path_m"} <= set(CSV_COLUMNS)
+
+
+def test_an_agent_that_observes_the_structure_gets_the_option_without_being_told():
+    """A ``ppo:`` model whose features include the structure makes its runs' env observe it (the
+    user's explicit setting wins); other controllers' runs are unchanged."""
+    pytest.importorskip("stable_baselines3")
+    from wt_inspect.evaluation import sweep_specs
+    agent = "ppo:results/training/ppo_full_scratch_seeds/seed_2/best_model.zip"
+    specs = sweep_specs("paper", [agent, "vtnmpc", "ppo:ppo_full_vec128"], [4.0], [0])
+    opts = {s.controller: s.env_options for s in specs}
+    assert opts[agent]["structure_observation"] is True
+    assert "structure_observation" not in opts["vtnmpc"] and "structure_observation" not in opts["ppo:ppo_full_vec128"]
+    told = sweep_specs("paper", [agent], [4.0], [0], env_overrides={"structure_observation": False})
+    assert told[0].env_options["structure_observation"] is False

@@ -154,14 +154,19 @@ def _seeds(values: Iterable[Any]) -> list[int]:
 def plan_sweep(scenario: str, controllers: Sequence[str], winds: Sequence[float], seeds: Sequence[int], *,
                sweep: SweepSpec, max_time: float | None, record_every: int,
                custom: Iterable[str] = (), trust_model: bool = False) -> list[RunSpec]:
-    """The run specs of a sweep in table order (wind, controller, seed); all validation here."""
+    """The run specs of a sweep in table order (wind, controller, seed); all validation here. A
+    controller's runs get the env options it needs (:func:`registry.env_options`) where the sweep
+    does not set them."""
     custom = set(custom)
     specs = []
+    # what a controller needs of the env (an agent that observes the structure), unless the user set it
+    needs = {c: {} if c in custom else registry.env_options(c) for c in controllers}
     for wind in winds:
         opts = sweep.options(wind)
         for c in controllers:
+            own = {**{k: v for k, v in needs[c].items() if k not in opts}, **opts}
             for s in seeds:
-                specs.append(make_spec(scenario, c, wind, s, opts, max_time, record_every, custom=c in custom,
+                specs.append(make_spec(scenario, c, wind, s, own, max_time, record_every, custom=c in custom,
                                        trust_model=trust_model))
     return specs
 

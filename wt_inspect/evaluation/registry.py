@@ -174,6 +174,20 @@ def fingerprint(name: str) -> str:
     return (f"{key}:{entry.fingerprint(arg)}" if entry.fingerprint is not None else f"{key}:{arg}") + suffix
 
 
+def env_options(name: str) -> dict[str, Any]:
+    """The env options the controller ``name`` needs (its entry's ``env_options`` for its
+    argument; none for a plain name or an entry without the hook)."""
+    name, _ = split_filter(name)
+    try:
+        key, arg = split_name(name)
+        entry = _load(key)
+    except (KeyError, ValueError, ModuleNotFoundError):   # a bad name is reported where the run is planned
+        return {}
+    if arg is None or entry.env_options is None:
+        return {}
+    return dict(entry.env_options(arg))
+
+
 def resolve(name: str, *, trust_model: bool = False) -> PolicyFactory:
     """The factory ``env -> policy`` of a controller name (see the module docstring);
     ``trust_model``: the user's explicit consent to run code from a model file that needs it."""
