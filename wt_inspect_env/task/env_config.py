@@ -168,6 +168,14 @@ class EnvConfig:
         of the first phase's path (0: at its start; RL training on the blade task uses 0.9 so
         that short training episodes also see the transitions round the blade edges). Coverage
         and metrics count from the start point.
+    start_near_structure: the share (in [0, 1]) of episodes that start, instead of uniformly, at
+        a point of the first ``start_progress`` of the path whose ideal stand-off pose lies within
+        ``start_near_distance`` [m] of the structure - round the hub and the blade roots, where
+        the path passes closest. Uniform starts put a few per cent of the episodes there, and an
+        agent that keeps d_min by itself has to learn those passes; 0 (default): uniform starts
+        only (and no extra random draw, so the seeded stream is unchanged). Needs
+        ``start_progress`` > 0.
+    start_near_distance: see ``start_near_structure`` [m].
     working_margin: the working volume is the bounding box of the turbine, the path and the
         episode's start position, grown by this [m].
     pose_error_limit: end the episode (``terminated``, ``info["termination"] == "lost_pose"``, the
@@ -236,6 +244,8 @@ class EnvConfig:
     start_noise: float = 0.0
     start_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     start_progress: float = 0.0
+    start_near_structure: float = 0.0
+    start_near_distance: float = 4.0
     working_margin: float = 30.0
     pose_error_limit: float | None = None
     clearance_limit: float | None = None
@@ -320,6 +330,13 @@ class EnvConfig:
         check_positive("start_progress", self.start_progress, allow_zero=True)
         if self.start_progress >= 1.0:
             raise ValueError(f"start_progress must be below 1, got {self.start_progress!r}")
+        check_positive("start_near_structure", self.start_near_structure, allow_zero=True)
+        if self.start_near_structure > 1.0:
+            raise ValueError(f"start_near_structure must be a share in [0, 1], got {self.start_near_structure!r}")
+        check_positive("start_near_distance", self.start_near_distance)
+        if self.start_near_structure > 0.0 and self.start_progress <= 0.0:
+            raise ValueError(f"start_near_structure ({self.start_near_structure!r}) needs start_progress > 0 "
+                             "(the starts are drawn along that part of the path)")
         check_positive("working_margin", self.working_margin)
         if self.pose_error_limit is not None:
             check_positive("pose_error_limit", self.pose_error_limit)

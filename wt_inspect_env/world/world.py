@@ -49,6 +49,7 @@ _MAX_RAYS = 16383          # PyBullet's rayTestBatch limit per call
 _MAX_EPISODE_WINDS = 8     # per drone: distinct reset(options={"wind": ...}) fields kept
 START_CLEARANCE_MARGIN = 0.1   # [m] a noisy start keeps this much more than clearance_limit
 START_REDRAWS = 16             # noisy starts drawn before the noise-free one is taken
+NEAR_START_SAMPLES = 4096      # points of the start range searched for poses near the structure
 
 
 def grow_to_start(lo: np.ndarray, hi: np.ndarray, start: np.ndarray, margin: float
@@ -173,6 +174,7 @@ class InspectionWorld:
         self._structure = ([DistanceField(t.mesh.triangles) for t in mission.turbines]
                            if cfg.structure_observation or self._clearance_terms else None)
         self._structure_cache: tuple[np.ndarray, ...] | None = None     # (state, phases, vectors, distances)
+        self._near_starts: dict[tuple[float, float], np.ndarray] = {}   # (progress, distance) -> fractions
 
     # ------------------------------------------------------------------ queries
     @property
@@ -237,7 +239,7 @@ class InspectionWorld:
         rng, ep = self.rng(i), self.episode[i]
         self.winds[i].reset(int(rng.integers(2**63 - 1)))
         self.set_phase(i, 0)
-        frac = float(rng.uniform(0.0, ep.start_progress)) if ep.start_progress > 0 else 0.0
+        frac = self._start_fraction(i, ep, rng)
         self.reference.reset(i, frac)
         s = self.reference.sample
         state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
@@ -266,6 +268,42 @@ class InspectionWorld:
         self.metrics_acc.reset(i)
         self.steps[i] = 0
         self.done_time[i] = math.nan
+
+    def _start_fraction(self, i: int, ep: EnvConfig, rng: np.random.Generator) -> float:
+        """Where along the first phase's path drone ``i`` starts: uniformly in the first
+        ``start_progress``, or - a ``start_near_structure`` share of the time - at one of the
+        points of that range whose ideal pose lies within ``start_near_distance`` of the
+        structure (drawn uniformly among them, jittered within their sample spacing)."""
+        if ep.start_progress <= 0:
+            return 0.0
+        if ep.start_near_structure <= 0 or rng.uniform() >= ep.start_near_structure:
+            return float(rng.uniform(0.0, ep.start_progress))
+        near = self._near_fractions(i, ep)
+        step = ep.start_progress / NEAR_START_SAMPLES
+        return float(min(near[rng.integers(len(near))] + rng.uniform(0.0, step), np.nextafter(ep.start_progress, 0)))
+
+    def _near_fractions(self, i: int, ep: EnvConfig) -> np.ndarray:
+        """The sample fractions of the first ``start_progress`` of the path whose ideal pose lies
+        within ``start_near_distance`` of the first rotor position's mesh (found once per range on
+        drone ``i``'s reference row, which its reset overwrites next)."""
+        key = (float(ep.start_progress), float(ep.start_near_distance))
+        if key not in self._near_starts:
+            fracs = np.arange(NEAR_START_SAMPLES) * (ep.start_progress / NEAR_START_SAMPLES)
+            poses = np.empty((len(fracs), 3))
+            for k, f in enumerate(fracs):
+                self.reference.reset(i, float(f))
+                poses[k] = self.reference.sample.ideal_position[i]
+            field = (self._structure[0] if self._structure is not None
+                     else DistanceField(self.mission.turbines[0].mesh.triangles))
+            dist = field.closest(poses)[1]
+            near = fracs[dist < ep.start_near_distance]
+            if not len(near):
+                raise ValueError(f"start_near_structure: no ideal pose of the first start_progress="
+                                 f"{ep.start_progress!r} of the path lies within start_near_distance="
+                                 f"{ep.start_near_distance!r} m of the structure (the closest is "
+                                 f"{float(dist.min()):.2f} m)")
+            self._near_starts[key] = near
+        return self._near_starts[key]
 
     def _clear_start(self, i: int, state: np.ndarray, s: Any, ep: Any, rng: np.random.Generator) -> np.ndarray:
         """With ``clearance_limit`` and ``start_noise``, a start whose noise put it closer than the
