@@ -57,8 +57,8 @@ class RewardConfig:
     * ``crash``: one-off penalty on collision, leaving the working volume or a non-finite state.
     * ``clearance``: per second, times the shortfall below d_min as a share of it,
       ``max(0, d_min - d) / d_min`` with ``d`` the distance to the structure (the turbine mesh of the
-      flown rotor position; reported as the term ``clearance``). 0 (default): off. On, the task's
-      step takes the hooks' general path (the compiled step knows no structure distances).
+      flown rotor position; reported as the term ``clearance``). 0 (default): off. On, every step
+      queries the structure distances (the compiled step adds the term to its result).
     """
 
     coverage: float = 100.0
@@ -188,8 +188,8 @@ class EnvConfig:
     clearance_limit: end the episode (``terminated``, ``info["termination"] == "too_close"``, the
         crash penalty) once the drone is closer than this [m] to the structure (the turbine mesh of
         the flown rotor position); ``None`` (default): no such limit. For training agents that keep
-        d_min by themselves (set it a little below ``d_min``); like ``reward.clearance`` it takes
-        the hooks' general path.
+        d_min by themselves (set it a little below ``d_min``); like ``reward.clearance`` it makes
+        every step query the structure distances.
     occlusion: ray-cast occlusion in the coverage test (the paper's code skipped it).
     planner: further :class:`~wt_inspect_env.planner.PlannerConfig` options (dict), e.g.
         ``{"clearance": 0.2}`` for a scaled lab turbine; ``standoff``, ``spacing`` and

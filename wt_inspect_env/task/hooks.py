@@ -17,7 +17,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .step_terms import observations, reward_terms, termination_codes
+from .step_terms import clearance_reward, observations, reward_terms, termination_codes, too_close
 
 
 class WorldView(Protocol):
@@ -77,9 +77,7 @@ class TaskHooks:
         reward, terms = reward_terms(w, world.dt, world.n_triangles, actions, world.hover_action,
                                      world.sim.state, s.ideal_position, s.point, n_new, terminated)
         if w.clearance > 0.0:
-            d_min = world.config.d_min
-            short = np.maximum(0.0, d_min - world.structure()[1]) / d_min
-            terms["clearance"] = np.where(np.isfinite(short), -w.clearance * world.dt * short, 0.0)
+            terms["clearance"] = clearance_reward(w, world.dt, world.config.d_min, world.structure()[1])
             reward = reward + terms["clearance"]
         return reward, terms
 
@@ -94,6 +92,5 @@ class TaskHooks:
                                  s.waiting_for_phase_change, world.config.pose_error_limit)
         limit = world.config.clearance_limit
         if limit is not None:
-            close = (code == 0) & (world.structure()[1] < limit)
-            code[close] = self.code_for("too_close")
+            code[too_close(code, world.structure()[1], limit)] = self.code_for("too_close")
         return code

@@ -47,6 +47,19 @@ def reward_terms(w: RewardConfig, dt: float, n_triangles: int, action: np.ndarra
     return reward, {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)}
 
 
+def clearance_reward(w: RewardConfig, dt: float, d_min: float, distance: np.ndarray) -> np.ndarray:
+    """The ``clearance`` reward term per drone: ``-w.clearance * dt`` times the shortfall below
+    ``d_min`` as a share of it (0 for a drone without a finite distance)."""
+    short = np.maximum(0.0, d_min - distance) / d_min
+    return np.where(np.isfinite(short), -w.clearance * dt * short, 0.0)
+
+
+def too_close(code: np.ndarray, distance: np.ndarray, limit: float) -> np.ndarray:
+    """The drones that ``clearance_limit`` ends: going on (code 0) and closer than ``limit`` to
+    the structure."""
+    return (code == 0) & (distance < limit)
+
+
 def termination_codes(state: np.ndarray, collision: np.ndarray, lo: np.ndarray, hi: np.ndarray,
                       ideal: np.ndarray, waiting: np.ndarray, pose_error_limit: float | None) -> np.ndarray:
     """Termination code per drone: 0 going on, 1 non-finite state, 2 collision, 3 outside the

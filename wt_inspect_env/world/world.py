@@ -42,7 +42,7 @@ from ..task.randomization import RandomizationDraw, noisy_state
 from ..task.randomization import draw as draw_randomization
 from ..task.reference import BatchedReference, InspectionReference, ReferenceConfig
 from ..task.spaces import ActionScaling
-from ..task.step_terms import REWARD_TERMS
+from ..task.step_terms import REWARD_TERMS, clearance_reward, too_close
 from .batched_sim import BatchedQuadrotorSim, ray_mask
 
 _MAX_RAYS = 16383          # PyBullet's rayTestBatch limit per call
@@ -169,7 +169,7 @@ class InspectionWorld:
         self._latency_drones: list[int] = []      # ... and command latency
         self._fused_step: Any = None
         # exact nearest points of each rotor position's collision mesh, for the structure
-        # observation and the optional clearance terms of the task (the hooks' general path)
+        # observation and the optional clearance terms of the task
         self._clearance_terms = cfg.clearance_limit is not None or cfg.reward.clearance > 0.0
         self._structure = ([DistanceField(t.mesh.triangles) for t in mission.turbines]
                            if cfg.structure_observation or self._clearance_terms else None)
@@ -347,9 +347,10 @@ class InspectionWorld:
         """One control step of every drone under validated normalised ``actions`` (N, 4).
 
         With the default hooks and the world's own simulator the whole step after the flight is
-        two compiled calls (:meth:`_step_fused`); hooks of a subclass (or a stand-in simulator such
-        as a vehicle link) and the optional clearance terms (``clearance_limit``,
-        ``reward.clearance``) take the general path, which calls them. Both give the same numbers."""
+        two compiled calls (:meth:`_step_fused`), plus the optional clearance terms
+        (``clearance_limit``, ``reward.clearance``) on their result; hooks of a subclass (or a
+        stand-in simulator such as a vehicle link) take the general path, which calls them. Both
+        give the same numbers."""
         self.sim.step(self.commands(actions))
         self.steps += 1
         if self._fused_ok():
@@ -359,8 +360,7 @@ class InspectionWorld:
     def _fused_ok(self) -> bool:
         h = type(self.hooks)
         return (type(self.sim) is BatchedQuadrotorSim and h.observations is TaskHooks.observations
-                and h.rewards is TaskHooks.rewards and h.terminations is TaskHooks.terminations
-                and not self._clearance_terms)
+                and h.rewards is TaskHooks.rewards and h.terminations is TaskHooks.terminations)
 
     def _fused(self) -> Any:
         """The compiled step's view of the world's arrays (built once; they are updated in place)."""
@@ -410,9 +410,32 @@ class InspectionWorld:
         self._add_structure(obs, ~finite)
         self._add_noise(obs, ~finite, None)
         terms = buf["terms"].copy()
-        return StepResult(obs, buf["reward"].copy(), {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)},
-                          buf["code"].copy(), buf["terminated"].copy(), buf["truncated"].copy(),
-                          buf["complete"].copy(), finite.copy())
+        named = {k: terms[:, j] for j, k in enumerate(REWARD_TERMS)}
+        reward, code = buf["reward"].copy(), buf["code"].copy()
+        terminated, truncated = buf["terminated"].copy(), buf["truncated"].copy()
+        if self._clearance_terms:
+            reward = self._clearance_after(reward, named, code, terminated, truncated)
+        return StepResult(obs, reward, named, code, terminated, truncated, buf["complete"].copy(), finite.copy())
+
+    def _clearance_after(self, reward: np.ndarray, terms: dict[str, np.ndarray], code: np.ndarray,
+                         terminated: np.ndarray, truncated: np.ndarray) -> np.ndarray:
+        """The optional clearance terms on the compiled step's result (in place; returns the
+        reward): the same functions as the hooks' general path, in the same order of operations -
+        a ``too_close`` end adds the crash penalty as the compiled sum's last term would have (it
+        was 0 there), then the ``clearance`` term is added - so both paths give the same numbers."""
+        cfg = self.config
+        dist = self.structure()[1]
+        if cfg.clearance_limit is not None:
+            close = too_close(code, dist, cfg.clearance_limit)
+            if close.any():
+                code[close] = self.hooks.code_for("too_close")
+                terminated[close], truncated[close] = True, False
+                terms["crash"][close] = -cfg.reward.crash
+                reward[close] = reward[close] + -cfg.reward.crash
+        if cfg.reward.clearance > 0.0:
+            terms["clearance"] = clearance_reward(cfg.reward, self.dt, cfg.d_min, dist)
+            reward = reward + terms["clearance"]
+        return reward
 
     def _step_general(self, actions: np.ndarray) -> StepResult:
         n, cfg = self.n, self.config

@@ -77,8 +77,15 @@ class SameTask(TaskHooks):
         return super().rewards(world, actions, n_new, terminated)
 
 
-def test_the_compiled_step_and_the_hook_path_fly_the_same_episode_bit_for_bit():
-    opts = dict(wind={"type": "dryden", "mean_speed": 5.0}, start_noise=0.8, randomization=True, time_limit_s=3.0)
+CLEARANCE = dict(task="full", start_progress=0.999, start_near_structure=1.0, start_near_distance=3.4, clearance_limit=3.2,
+                 reward={"clearance": 20.0}, wind={"type": "gust", "mean_speed": 7.0}, start_noise=0.8,
+                 time_limit_s=3.0)
+
+
+@pytest.mark.parametrize("opts", [
+    dict(wind={"type": "dryden", "mean_speed": 5.0}, start_noise=0.8, randomization=True, time_limit_s=3.0),
+    CLEARANCE], ids=["default-terms", "clearance-terms"])
+def test_the_compiled_step_and_the_hook_path_fly_the_same_episode_bit_for_bit(opts):
     fast = gym.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", **opts)
     hooked = gym.make_vec(ENV, num_envs=3, vectorization_mode="vector_entry_point", hooks=SameTask(), **opts)
     assert fast.unwrapped.world._fused_ok() and not hooked.unwrapped.world._fused_ok()
@@ -86,7 +93,7 @@ def test_the_compiled_step_and_the_hook_path_fly_the_same_episode_bit_for_bit():
     try:
         a_obs, _ = fast.reset(seed=2)
         b_obs, _ = hooked.reset(seed=2)
-        ends = 0
+        ends = close = 0
         for _ in range(450):              # past the 3 s limit: autoresets on both
             act = np.clip(rng.normal(0.0, 0.3, (3, 4)), -1, 1)
             a = fast.step(act)
@@ -95,10 +102,13 @@ def test_the_compiled_step_and_the_hook_path_fly_the_same_episode_bit_for_bit():
                 np.testing.assert_array_equal(a[0][k], b[0][k])
             np.testing.assert_array_equal(a[1], b[1])
             assert np.array_equal(a[2], b[2]) and np.array_equal(a[3], b[3])
+            assert set(a[4]["reward_terms"]) == set(b[4]["reward_terms"])
             for k in a[4]["reward_terms"]:
                 np.testing.assert_array_equal(a[4]["reward_terms"][k], b[4]["reward_terms"][k])
             ends += int(np.sum(a[2] | a[3]))
+            close += int(np.sum(np.asarray(a[4]["termination"]) == "too_close"))
         assert ends >= 3
+        assert (close > 0) == ("clearance_limit" in opts)     # the clearance end is flown on both paths
         for i in range(3):
             ma, mb = fast.unwrapped.metrics(i), hooked.unwrapped.metrics(i)
             assert all(ma[k] == mb[k] or (ma[k] != ma[k] and mb[k] != mb[k]) for k in ma)
