@@ -59,6 +59,9 @@ class RewardConfig:
       ``max(0, d_min - d) / d_min`` with ``d`` the distance to the structure (the turbine mesh of the
       flown rotor position; reported as the term ``clearance``). 0 (default): off. On, every step
       queries the structure distances (the compiled step adds the term to its result).
+    * ``clearance_margin``: the clearance cost starts this far [m] above d_min, ``max(0, d_min +
+      margin - d) / d_min``: an agent whose tracking error is decimetres, where the stand-off pose
+      itself passes little more than d_min from the hub, learns to keep that error outward.
     """
 
     coverage: float = 100.0
@@ -68,6 +71,7 @@ class RewardConfig:
     effort: float = 0.05
     crash: float = 100.0
     clearance: float = 0.0
+    clearance_margin: float = 0.0
 
     def __post_init__(self) -> None:
         check_field_types(self, "reward ")

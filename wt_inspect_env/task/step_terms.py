@@ -49,8 +49,8 @@ def reward_terms(w: RewardConfig, dt: float, n_triangles: int, action: np.ndarra
 
 def clearance_reward(w: RewardConfig, dt: float, d_min: float, distance: np.ndarray) -> np.ndarray:
     """The ``clearance`` reward term per drone: ``-w.clearance * dt`` times the shortfall below
-    ``d_min`` as a share of it (0 for a drone without a finite distance)."""
-    short = np.maximum(0.0, d_min - distance) / d_min
+    ``d_min + w.clearance_margin`` as a share of ``d_min`` (0 for a drone without a finite distance)."""
+    short = np.maximum(0.0, (d_min + w.clearance_margin) - distance) / d_min
     return np.where(np.isfinite(short), -w.clearance * dt * short, 0.0)
 
 

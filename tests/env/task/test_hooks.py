@@ -77,8 +77,9 @@ class SameTask(TaskHooks):
         return super().rewards(world, actions, n_new, terminated)
 
 
-CLEARANCE = dict(task="full", start_progress=0.999, start_near_structure=1.0, start_near_distance=3.4, clearance_limit=3.2,
-                 reward={"clearance": 20.0}, wind={"type": "gust", "mean_speed": 7.0}, start_noise=0.8,
+CLEARANCE = dict(task="full", start_progress=0.999, start_near_structure=1.0, start_near_distance=3.4,
+                 clearance_limit=3.2, reward={"clearance": 20.0, "clearance_margin": 0.3},
+                 wind={"type": "gust", "mean_speed": 7.0}, start_noise=0.8,
                  time_limit_s=3.0)
 
 

@@ -81,7 +81,7 @@ def test_the_structure_entry_of_drone_i_is_the_single_envs_across_autoresets():
 
 
 def test_the_clearance_terms_of_drone_i_are_the_single_envs():
-    # clearance_limit and reward.clearance take the hooks' general path in both envs
+    # clearance_limit and reward.clearance (on the compiled step) in both envs
     _run_side_by_side(2, 40, start_noise=0.5, clearance_limit=2.5, reward={"clearance": 1.0})
 
 

@@ -60,7 +60,7 @@ def test_a_distance_no_pose_comes_within_is_one_clear_error():
     env = WindTurbineInspectionVectorEnv(num_envs=2, task="full", wind="none", start_progress=0.5,
                                          start_near_structure=1.0, start_near_distance=0.5)
     try:
-        with pytest.raises(ValueError, match=r"start_near_distance=0.5 m of the structure \(the closest is 3\.\d\d m\)"):
+        with pytest.raises(ValueError, match=r"distance=0.5 m of the structure \(the closest is 3\.\d\d m\)"):
             env.reset(seed=0)
     finally:
         env.close()

@@ -137,10 +137,11 @@ def test_noisy_starts_inside_the_clearance_limit_are_drawn_again():
     assert starts(clearance_limit=2.9).min() >= 2.9 + START_CLEARANCE_MARGIN - 1e-4
 
 
-def test_the_clearance_reward_term_is_the_shortfall_below_d_min():
-    """``reward.clearance`` = w: the term is -w dt max(0, d_min - d) / d_min with d the exact distance
-    (brute force over every triangle); 0 at the stand-off."""
-    env = gym.make(ENV, reward={"clearance": 2.0}, wind="none")
+@pytest.mark.parametrize("margin", [0.0, 0.5])
+def test_the_clearance_reward_term_is_the_shortfall_below_d_min(margin):
+    """``reward.clearance`` = w: the term is -w dt max(0, d_min + margin - d) / d_min with d the
+    exact distance (brute force over every triangle); 0 at the stand-off."""
+    env = gym.make(ENV, reward={"clearance": 2.0, "clearance_margin": margin}, wind="none")
     try:
         u = env.unwrapped
         hover = u.scaling.hover_action().astype(np.float32)
@@ -153,7 +154,8 @@ def test_the_clearance_reward_term_is_the_shortfall_below_d_min():
         d = float(brute_distance(u.sim.state[0:1, 0:3], tris)[0])
         d_min = u.config.d_min
         assert d < d_min - 0.5
-        assert info["reward_terms"]["clearance"] == pytest.approx(-2.0 * u.dt * (d_min - d) / d_min, rel=1e-9)
+        assert info["reward_terms"]["clearance"] == pytest.approx(-2.0 * u.dt * (d_min + margin - d) / d_min,
+                                                                  rel=1e-9)
     finally:
         env.close()
 
@@ -163,6 +165,8 @@ def test_bad_clearance_options_name_the_field():
         gym.make(ENV, clearance_limit=-1.0)
     with pytest.raises(ValueError, match="clearance"):
         gym.make(ENV, reward={"clearance": -1.0})
+    with pytest.raises(ValueError, match="clearance_margin"):
+        gym.make(ENV, reward={"clearance": 1.0, "clearance_margin": -0.5})
 
 
 def test_a_policy_check_keeps_the_structure_entry():
