@@ -44,7 +44,7 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
     module docstring); nothing is written. Needs the ``rl`` extra."""
     import torch
 
-    from .training import _build_model, algo_class, make_vec_env, resolve_run
+    from .training import _build_model, algo_class, make_vec_env, new_stage, resolve_run
 
     if algo != "ppo":
         raise ValueError(f"a training digest needs algorithm 'ppo', got {algo!r}")
@@ -91,7 +91,7 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
 
         # the run's whole length, so that a learning-rate schedule is where the run's first update has it
         agent_steps = max(int(np.ceil(timesteps / rec.spec.action_repeat)), 2 * n_steps * n_envs)
-        model.learn(total_timesteps=agent_steps, callback=Recorder(), reset_num_timesteps=ckpt_doc is None,
+        model.learn(total_timesteps=agent_steps, callback=Recorder(), reset_num_timesteps=new_stage(ckpt_doc, recipe),
                     progress_bar=False)
         logged = model.logger.name_to_value
         update = [float(logged.get(f"train/{k}", np.nan)) for k in UPDATE_STATISTICS]

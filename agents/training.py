@@ -357,10 +357,12 @@ def _algo_kwargs(recipe: Recipe) -> dict[str, Any]:
 
 
 # PPO settings a fine-tune's recipe may change on a resumed model (SB3's ``load(**kwargs)`` sets
-# them before the rollout buffer is built): the rollout length per drone must follow the number of
-# drones, or a 16-drone fine-tune of a 2-env model would collect 8x longer rollouts per update.
+# them before the rollout buffer and the schedules are built): the rollout length per drone must
+# follow the number of drones, or a 16-drone fine-tune of a 2-env model would collect 8x longer
+# rollouts per update; and a fine-tune's learning rate and clip range are its own (they were once
+# left at the base model's, and the saved model then disagreed with its own sidecar's recipe).
 PPO_RESUME_KEYS = ("n_steps", "batch_size", "n_epochs", "gae_lambda", "ent_coef", "vf_coef", "max_grad_norm",
-                   "target_kl")
+                   "target_kl", "learning_rate", "clip_range")
 
 
 def resume_overrides(algo: str, recipe: Recipe) -> dict[str, Any]:
@@ -421,6 +423,14 @@ def _build_model(cls, algo: str, rec: Recipe, venv, *, resume, ckpt_doc, recipe,
         model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
                     policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
     return model, vecnorm, venv
+
+
+def new_stage(ckpt_doc: Mapping[str, Any] | None, recipe: Any) -> bool:
+    """Whether a run starts a stage of its own - a new model, or a resumed one with an explicit
+    recipe (a fine-tune) - rather than continuing a stopped run. SB3 then counts its decisions
+    from 0, so the recipe's schedules (a decaying learning rate) run over this stage, not over
+    the tail of the base model's run."""
+    return ckpt_doc is None or recipe is not None
 
 
 def resolve_run(algo: str, *, recipe: str | Path | Recipe | None, resume: str | Path | None,
@@ -531,7 +541,7 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     callback = _callback_class()(run)
     agent_steps = math.ceil(timesteps / rec.spec.action_repeat)
     try:
-        model.learn(total_timesteps=agent_steps, callback=callback, reset_num_timesteps=ckpt_doc is None,
+        model.learn(total_timesteps=agent_steps, callback=callback, reset_num_timesteps=new_stage(ckpt_doc, recipe),
                     tb_log_name=algo, progress_bar=False)
         train_seconds = run.elapsed()
         eval_seconds = run.eval_time

@@ -327,3 +327,26 @@ def test_targets_that_share_a_threshold_share_one_labelled_line():
     draw_targets(axes, {"a": {"coverage": 0.9}, "b": {"coverage": 0.99}})
     assert len(axes[0].get_lines()) == 3
     plt.close(fig)
+
+
+def test_a_fine_tune_flies_its_own_learning_rate_and_its_model_loads_safely(tmp_path):
+    """A fine-tune recipe's learning rate (a decaying schedule here) is the one the stage trains
+    with, over the stage (SB3 counts the stage's decisions from 0), and the saved model agrees with
+    its sidecar, so the safe loader (what ``evaluate`` uses) takes it."""
+    import zipfile
+
+    from agents.safe_load import check_safe
+    from agents.training import algo_class, load_sidecar, train
+    recipe = _tiny_recipe_file(tmp_path)
+    base = train("ppo", "surface", 300, 1, tmp_path / "base", recipe=recipe, progress_bar=False)["final_model"]
+    data = json.loads(Path(recipe).read_text())
+    data["algo_kwargs"].update(learning_rate=1e-4, learning_rate_final=5e-5, clip_range=0.1)
+    ft = tmp_path / "ft.json"
+    ft.write_text(json.dumps(data))
+    out = train("ppo", "surface", 300, 1, tmp_path / "ft", recipe=str(ft), resume=base, progress_bar=False)
+    model = Path(out["final_model"])
+    with zipfile.ZipFile(model) as z:
+        stored = json.loads(z.read("data"))
+    assert stored["learning_rate"]["start"] == 1e-4 and stored["learning_rate"]["end"] == 5e-5
+    assert out["agent_decisions"] <= 300                   # the stage's own decisions
+    check_safe(algo_class("ppo"), model, load_sidecar(model))  # no mismatch with the sidecar's recipe
