@@ -93,7 +93,7 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
 
     from .policy import algo_class
     from .recipe import default_recipe_path, load_recipe
-    from .training import _algo_kwargs, _policy_kwargs, make_vec_env
+    from .training import _algo_kwargs, _policy_kwargs, recipe_vec_env
 
     rec = load_recipe(recipe or default_recipe_path(algo))
     if rec.algo != algo:
@@ -101,8 +101,7 @@ def run_bench(algo: str = "ppo", task: str = "surface", n_envs: int = 2, steps: 
     torch.set_num_threads(rec.torch_threads)
     k = rec.spec.action_repeat
     decisions = math.ceil(steps / (k * n_envs))     # vector steps
-    venv = VecNormalize(make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
-                                     variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed),
+    venv = VecNormalize(recipe_vec_env(rec, task, n_envs, backend=backend, seed=seed),
                         gamma=float(rec.algo_kwargs.get("gamma", 0.99)))
     rng = np.random.default_rng(seed)
     vec_rates, learn_rates = [], []

@@ -44,60 +44,56 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
     module docstring); nothing is written. Needs the ``rl`` extra."""
     import torch
 
-    from .training import _build_model, algo_class, make_vec_env, new_stage, resolve_run
+    from .training import build_run, new_stage, resolve_run
 
     if algo != "ppo":
         raise ValueError(f"a training digest needs algorithm 'ppo', got {algo!r}")
     rec, ckpt_doc, legacy = resolve_run(algo, recipe=recipe, resume=resume, trust_model=trust_model)
     threads = torch.get_num_threads()
     torch.set_num_threads(rec.torch_threads)
-    venv = make_vec_env(task, rec.env, rec.spec, n_envs, backend="vector", shaping=rec.shaping,
-                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
-    norm = dict(rec.normalize)
     try:
-        model, vecnorm, venv = _build_model(
-            algo_class(algo), algo, rec, venv, resume=resume, ckpt_doc=ckpt_doc, recipe=recipe,
-            trust_model=trust_model, seed=seed, verbose=0, tb=None,
-            use_norm=bool(norm.get("obs", True) or norm.get("reward", True)), norm=norm,
-            gamma=float(rec.algo_kwargs.get("gamma", 0.99)), legacy=legacy)
-        vector = _vector_env(venv)
-        world = vector.world
-        rows = [0, n_envs - 1]
-        samples: dict[str, list] = {"position": [], "velocity": [], "reward": []}
-        first_obs: list[np.ndarray] = []
-        total = np.zeros(len(rows) + 1)
-        n_steps = int(model.n_steps)
+        model, vecnorm, venv = build_run(algo, task, n_envs, rec, backend="vector", seed=seed, resume=resume,
+                                         ckpt_doc=ckpt_doc, recipe=recipe, trust_model=trust_model, legacy=legacy)
+        try:
+            vector = _vector_env(venv)
+            world = vector.world
+            rows = [0, n_envs - 1]
+            samples: dict[str, list] = {"position": [], "velocity": [], "reward": []}
+            first_obs: list[np.ndarray] = []
+            total = np.zeros(len(rows) + 1)
+            n_steps = int(model.n_steps)
 
-        from stable_baselines3.common.callbacks import BaseCallback
+            from stable_baselines3.common.callbacks import BaseCallback
 
-        class Recorder(BaseCallback):
-            """Records the first rollout; stops the second at its first step (after one update)."""
+            class Recorder(BaseCallback):
+                """Records the first rollout; stops the second at its first step (after one update)."""
 
-            def _on_rollout_start(self) -> None:
-                if not first_obs:
-                    first_obs.append(np.array(self.model._last_obs, dtype=np.float32))
+                def _on_rollout_start(self) -> None:
+                    if not first_obs:
+                        first_obs.append(np.array(self.model._last_obs, dtype=np.float32))
 
-            def _on_step(self) -> bool:
-                if len(samples["position"]) >= n_steps:
-                    return False
-                state = world.sim.state
-                raw = np.asarray(vecnorm.get_original_reward() if vecnorm is not None else self.locals["rewards"],
-                                 dtype=float)
-                total[:] += np.append(raw[rows], raw.mean())
-                samples["position"].append(state[rows, 0:3].reshape(-1))
-                samples["velocity"].append(state[rows, 3:6].reshape(-1))
-                samples["reward"].append(total.copy())
-                return True
+                def _on_step(self) -> bool:
+                    if len(samples["position"]) >= n_steps:
+                        return False
+                    state = world.sim.state
+                    raw = np.asarray(vecnorm.get_original_reward() if vecnorm is not None else self.locals["rewards"],
+                                     dtype=float)
+                    total[:] += np.append(raw[rows], raw.mean())
+                    samples["position"].append(state[rows, 0:3].reshape(-1))
+                    samples["velocity"].append(state[rows, 3:6].reshape(-1))
+                    samples["reward"].append(total.copy())
+                    return True
 
-        # the run's whole length, so that a learning-rate schedule is where the run's first update has it
-        agent_steps = max(int(np.ceil(timesteps / rec.spec.action_repeat)), 2 * n_steps * n_envs)
-        model.learn(total_timesteps=agent_steps, callback=Recorder(), reset_num_timesteps=new_stage(ckpt_doc, recipe),
-                    progress_bar=False)
-        logged = model.logger.name_to_value
-        update = [float(logged.get(f"train/{k}", np.nan)) for k in UPDATE_STATISTICS]
-        action, _ = model.policy.predict(first_obs[0], deterministic=True)
+            # the run's whole length, so that a learning-rate schedule is where the run's first update has it
+            agent_steps = max(int(np.ceil(timesteps / rec.spec.action_repeat)), 2 * n_steps * n_envs)
+            model.learn(total_timesteps=agent_steps, callback=Recorder(),
+                        reset_num_timesteps=new_stage(ckpt_doc, recipe), progress_bar=False)
+            logged = model.logger.name_to_value
+            update = [float(logged.get(f"train/{k}", np.nan)) for k in UPDATE_STATISTICS]
+            action, _ = model.policy.predict(first_obs[0], deterministic=True)
+        finally:
+            venv.close()
     finally:
-        venv.close()
         torch.set_num_threads(threads)
     dt = rec.spec.action_repeat * float(vector.dt)
     out: dict[str, Any] = {"t": [round((k + 1) * dt, 6) for k in range(len(samples["position"]))]}
@@ -108,4 +104,3 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
     out["action"] = np.round(summary[None], DECIMALS).tolist()
     out["update"] = np.round(np.asarray(update)[None], DECIMALS).tolist()
     return out
-

@@ -137,19 +137,14 @@ def new_clone_model(recipe, task: str, X: np.ndarray, seed: int):
     one-drone vector env, its observation normalisation set to the statistics of the features
     ``X`` (so a saved clone deploys with them). Close ``venv`` when done."""
     import torch
-    from stable_baselines3.common.vec_env import VecNormalize
 
     from .policy import algo_class
-    from .training import _policy_kwargs, make_vec_env
+    from .training import _policy_kwargs, recipe_vec_env, recipe_vecnormalize
 
     torch.manual_seed(seed)
     torch.set_num_threads(max(1, recipe.torch_threads))
-    venv = make_vec_env(task, recipe.env, recipe.spec, 1, backend="vector", shaping=recipe.shaping,
-                        variants=recipe.env_variants, weights=recipe.env_variant_weights, seed=seed)
-    norm = dict(recipe.normalize)
-    vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
-                           clip_obs=float(norm.get("clip_obs", 10.0)), clip_reward=float(norm.get("clip_reward", 10.0)),
-                           gamma=float(recipe.algo_kwargs.get("gamma", 0.99)))
+    venv = recipe_vec_env(recipe, task, 1, backend="vector", seed=seed)
+    vecnorm = recipe_vecnormalize(venv, recipe)
     vecnorm.obs_rms.mean = X.mean(axis=0).astype(np.float64)
     vecnorm.obs_rms.var = X.var(axis=0).astype(np.float64) + 1e-8
     vecnorm.obs_rms.count = float(len(X))

@@ -110,6 +110,23 @@ def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs:
     return SubprocVecEnv(fns, start_method="forkserver") if backend == "subprocess" else DummyVecEnv(fns)
 
 
+def recipe_vec_env(rec: Recipe, task: str, n_envs: int, *, backend: str = "vector", seed: int = 0):
+    """:func:`make_vec_env` with a recipe's env options, agent spec, shaping and env variants."""
+    return make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
+                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
+
+
+def recipe_vecnormalize(venv, rec: Recipe):
+    """A new VecNormalize around ``venv`` with the recipe's ``normalize`` switches and clips and
+    its discount (the reward statistics follow the return the algorithm discounts)."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    norm = dict(rec.normalize)
+    return VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
+                        clip_obs=float(norm.get("clip_obs", 10.0)), clip_reward=float(norm.get("clip_reward", 10.0)),
+                        gamma=float(rec.algo_kwargs.get("gamma", 0.99)))
+
+
 def run_episode(policy, env: gym.Env, seed: int) -> dict[str, Any]:
     """One episode of a ``reset/act`` policy on a raw env; the env's final metrics and the return,
     and - when the env observes the structure (``structure_observation``) - the least distance to
@@ -394,34 +411,36 @@ class TrainingInterrupted(KeyboardInterrupt):
         self.env_steps = env_steps
 
 
-def _build_model(cls, algo: str, rec: Recipe, venv, *, resume, ckpt_doc, recipe, trust_model: bool, seed: int,
-                 verbose: int, tb: str | None, use_norm: bool, norm: Mapping[str, Any], gamma: float,
-                 legacy: Path | None):
-    """The model (new, or loaded from ``resume``) and its VecNormalize around ``venv``; writes nothing."""
-    from stable_baselines3.common.vec_env import VecNormalize
-
-    vecnorm = None
-    if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
-        vecnorm = load_vecnormalize(sidecar_paths(resume)[2], venv)
-        venv = vecnorm
-    elif ckpt_doc is not None and trust_model and legacy is not None and legacy.is_file():
-        vecnorm = load_legacy_vecnormalize(legacy, venv)   # the user trusts this pickle (checked above)
-        venv = vecnorm
-    elif use_norm:
-        vecnorm = VecNormalize(venv, norm_obs=bool(norm.get("obs", True)), norm_reward=bool(norm.get("reward", True)),
-                               clip_obs=float(norm.get("clip_obs", 10.0)),
-                               clip_reward=float(norm.get("clip_reward", 10.0)), gamma=gamma)
-        venv = vecnorm
-    if ckpt_doc is not None:
-        changes = resume_overrides(algo, rec) if recipe is not None else {}
-        model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
-                               device="cpu", tensorboard_log=tb, **changes)
-        # SB3's load does not reseed: without this, the seeds of a fine-tune would share torch's
-        # unseeded stream and no fine-tune would be reproducible.
-        model.set_random_seed(seed)
-    else:
-        model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
-                    policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
+def build_run(algo: str, task: str, n_envs: int, rec: Recipe, *, backend: str, seed: int, resume, ckpt_doc, recipe,
+              trust_model: bool, legacy: Path | None, verbose: int = 0, tb: str | None = None):
+    """The agent envs of ``rec`` and the model on them (new, or loaded from ``resume``) with its
+    VecNormalize (the checkpoint's statistics, or new ones when the recipe normalises); returns
+    ``(model, vecnorm or None, the outermost VecEnv)``; closes the envs if building the model
+    fails. Writes nothing."""
+    venv = recipe_vec_env(rec, task, n_envs, backend=backend, seed=seed)
+    try:
+        vecnorm = None
+        norm = dict(rec.normalize)
+        if ckpt_doc is not None and sidecar_paths(resume)[2].is_file():
+            vecnorm = venv = load_vecnormalize(sidecar_paths(resume)[2], venv)
+        elif ckpt_doc is not None and trust_model and legacy is not None and legacy.is_file():
+            vecnorm = venv = load_legacy_vecnormalize(legacy, venv)   # the user trusts this pickle (checked above)
+        elif norm.get("obs", True) or norm.get("reward", True):
+            vecnorm = venv = recipe_vecnormalize(venv, rec)
+        cls = algo_class(algo)
+        if ckpt_doc is not None:
+            changes = resume_overrides(algo, rec) if recipe is not None else {}
+            model = load_sb3_model(cls, sidecar_paths(resume)[0], ckpt_doc, trust_model=trust_model, env=venv,
+                                   device="cpu", tensorboard_log=tb, **changes)
+            # SB3's load does not reseed: without this, the seeds of a fine-tune would share torch's
+            # unseeded stream and no fine-tune would be reproducible.
+            model.set_random_seed(seed)
+        else:
+            model = cls("MlpPolicy", venv, tensorboard_log=tb, seed=seed, device="cpu", verbose=verbose,
+                        policy_kwargs=_policy_kwargs(rec), **_algo_kwargs(rec))
+    except BaseException:
+        venv.close()
+        raise
     return model, vecnorm, venv
 
 
@@ -511,22 +530,11 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
 
     torch.set_num_threads(rec.torch_threads)
     out = Path(out)
-    cls = algo_class(algo)
     # Nothing is written into ``out`` until the model is built or loaded: a checkpoint refused while
     # loading (malformed statistics or model data) leaves no recipe.json behind.
-    venv = make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
-                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
-    norm = dict(rec.normalize)
-    use_norm = bool(norm.get("obs", True) or norm.get("reward", True))
-    gamma = float(rec.algo_kwargs.get("gamma", 0.99))
-    try:
-        model, vecnorm, venv = _build_model(cls, algo, rec, venv, resume=resume, ckpt_doc=ckpt_doc, recipe=recipe,
-                                            trust_model=trust_model, seed=seed, verbose=verbose, tb=str(out / "tb"),
-                                            use_norm=use_norm, norm=norm, gamma=gamma,
-                                            legacy=legacy)
-    except BaseException:
-        venv.close()
-        raise
+    model, vecnorm, venv = build_run(algo, task, n_envs, rec, backend=backend, seed=seed, resume=resume,
+                                     ckpt_doc=ckpt_doc, recipe=recipe, trust_model=trust_model, legacy=legacy,
+                                     verbose=verbose, tb=str(out / "tb"))
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "recipe.json", json.dumps(rec.to_dict(), indent=1))
     if ckpt_doc is not None:
