@@ -3,8 +3,11 @@
 Layout: the folders mirror the packages (``env/<subpackage>``, ``controllers``, ``agents``, ``cli``
 for ``wt_inspect``, ``px4``) plus ``project`` (docs, lint, layout, examples). Markers:
 :func:`pytest_collection_modifyitems` marks every test ``unit`` or ``integration``: integration
-are the ``cli``, ``px4`` and ``project`` folders, every ``slow`` test (closed loops and training)
-and any test marked so by hand; the rest are unit. ``pytest -m unit`` is the quick loop.
+are the ``cli``, ``px4`` and ``project`` folders, every ``slow`` test not marked ``unit`` by hand
+(closed loops, training) and any test marked so by hand; the rest are unit. ``slow`` is a test of
+about a second or more, so ``pytest -m "not slow" -n 2`` is the quick loop; a slow test of one
+module against its reference (a solver against IPOPT, the planner against brute force) carries
+``unit`` by hand.
 
 Fixtures: ``params`` (the Matrice-100-like preset every controller test flies) and ``qp_cache_dir``
 (one private compiled-library cache for the session's controller tests). The controller
@@ -58,7 +61,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
     for item in items:
         rel = os.path.relpath(str(item.path), root).split(os.sep)
         if item.get_closest_marker("integration") is None and (
-                rel[0] in INTEGRATION_FOLDERS or item.get_closest_marker("slow") is not None):
+                rel[0] in INTEGRATION_FOLDERS
+                or (item.get_closest_marker("slow") is not None and item.get_closest_marker("unit") is None)):
             item.add_marker(pytest.mark.integration)
         if item.get_closest_marker("integration") is None:
             item.add_marker(pytest.mark.unit)

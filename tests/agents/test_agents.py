@@ -134,6 +134,7 @@ def test_zero_policy_action_is_hover_and_tilt_compensated():
         ActionConfig(thrust_scale=0.9)
 
 
+@pytest.mark.slow
 def test_a_pd_law_on_the_features_holds_the_pose_in_the_gust():
     """The features and the action mapping are consistent (signs, frames, scales): a textbook
     cascaded PD on them, through the wrapper, tracks the moving stand-off pose in the paper's gust."""

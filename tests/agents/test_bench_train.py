@@ -8,6 +8,7 @@ pytest.importorskip("stable_baselines3")
 from agents.bench import run_bench  # noqa: E402
 
 
+@pytest.mark.slow
 def test_learn_time_splits_into_env_policy_and_update():
     """A tiny vector-env run: positive rates, and the split of the learning time into stepping the
     envs, the rest of the rollout and the update covers it exactly, each part taking a real share

@@ -57,6 +57,7 @@ def test_the_digest_records_the_first_rollout_and_update(reference, small):
     json.dumps(d)                              # plain data for provenance.json
 
 
+@pytest.mark.slow
 def test_the_digest_ignores_the_learners_thread_count_and_sees_a_changed_task_or_learner(reference, small):
     assert behaviour.compare(reference, _digest(dataclasses.replace(small, torch_threads=2))) == ""
     env = json.loads(json.dumps(small.env))

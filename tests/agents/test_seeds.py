@@ -329,6 +329,7 @@ def test_targets_that_share_a_threshold_share_one_labelled_line():
     plt.close(fig)
 
 
+@pytest.mark.slow
 def test_a_fine_tune_flies_its_own_learning_rate_and_its_model_loads_safely(tmp_path):
     """A fine-tune recipe's learning rate (a decaying schedule here) is the one the stage trains
     with, over the stage (SB3 counts the stage's decisions from 0), and the saved model agrees with

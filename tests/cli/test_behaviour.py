@@ -110,6 +110,7 @@ def test_a_changed_weight_makes_exactly_the_studies_that_fly_it_stale(tmp_path, 
     assert reproduce.staleness(root, studies[0], fly=False) == ""
 
 
+@pytest.mark.slow
 def test_check_reports_a_study_whose_behaviour_changed(tmp_path, monkeypatch):
     from controllers import vtnmpc
     root, studies = _checkout(tmp_path, seconds=2.0)

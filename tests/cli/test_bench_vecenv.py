@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import math
 
+import pytest
+
 from wt_inspect.commands import bench_vecenv
 
 
@@ -15,6 +17,7 @@ def test_memory_readings_cover_the_requested_steps_and_give_a_finite_slope():
     assert out["growth_mb_total"] == out["rss_mb"][-1] - out["rss_mb"][0]
 
 
+@pytest.mark.slow
 def test_cli_prints_every_n_the_single_env_row_and_the_memory_line(capsys):
     code = bench_vecenv.main(["--num-envs", "1,2", "--steps", "200", "--repeats", "1", "--task", "surface",
                               "--memory-steps", "400"])

@@ -153,6 +153,7 @@ def test_reused_out_flags_stale_files(tmp_path) -> None:
     ["evaluate", "--scenario", "surface", "--controllers", "vtnmpc", "--winds", "0", "--backend", "ray"],
     ["train", "--algo", "ppo", "--task", "surface", "--timesteps", "100", "--seeds", "0,1", "--ray"],
 ])
+@pytest.mark.slow
 def test_a_ray_address_nothing_answers_on_is_one_line_and_nothing_written(tmp_path, argv) -> None:
     pytest.importorskip("ray")
     out = tmp_path / "out"

@@ -183,6 +183,7 @@ def _exit_code(argv: list[str]) -> int:
         return int(exc.code)
 
 
+@pytest.mark.slow
 def test_python_api_custom_policy_object_and_factory():
     env_holder = {}
 
@@ -335,6 +336,7 @@ def test_results_md_states_the_runs_own_camera_rate_occlusion_and_control_step(t
     assert frames in metrics_line and step in metrics_line
 
 
+@pytest.mark.slow
 def test_a_stalled_run_reports_its_stall_in_the_results_row(tmp_path):
     """A drone that only hovers: the closed-loop reference waits for it and stalls after
     reference_stall_time; by default it moves on and the mission completes without the drone, with

@@ -102,6 +102,7 @@ def test_d_min_is_the_mpcs_default():
         assert EnvConfig(standoff=d_ref).d_min == pytest.approx(D_MIN_RATIO * d_ref)
 
 
+@pytest.mark.slow
 def test_crafted_line_past_a_blade_matches_the_brute_force():
     """A straight pass 2 m off a blade face of the paper turbine, from 8 m before to 8 m after
     the closest point, sampled at 100 Hz at 2 m/s: the minimum is the 2 m of the pass, and the
@@ -207,6 +208,7 @@ def test_straight_climb_path_length_and_energy():
     assert p.hover_power < m["mean_power_w"] < 1.2 ** 1.5 * p.hover_power
 
 
+@pytest.mark.slow
 def test_tables_and_figures_carry_clearance_and_energy(tmp_path):
     out = tmp_path / "ev"
     kw = dict(winds=[0.0], max_time=0.5, wind_type="dryden", jobs=1, progress=False)

@@ -88,6 +88,7 @@ EVALUATE = ["evaluate", "--scenario", "surface", "--controllers", "nmpc,pampc", 
             "0.3", "--no-progress"]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("sig,k", [("SIGTERM", 1), ("SIGINT", 1), ("SIGTERM", 0), ("SIGINT", 0)])
 def test_evaluate_jobs_1_interrupted_during_the_runs_writes_the_report(tmp_path, sig, k):
     out = tmp_path / "ev"
@@ -100,6 +101,7 @@ def test_evaluate_jobs_1_interrupted_during_the_runs_writes_the_report(tmp_path,
     assert not [p for p in out.rglob(".*") if p.is_file()]   # no temporary file left
 
 
+@pytest.mark.slow
 def test_a_single_run_sweep_interrupted_by_sigterm_writes_the_report(tmp_path):
     out = tmp_path / "ev"   # one run: the in-process path whatever --jobs says
     proc = _run(tmp_path, "SIGTERM", "run:0", EVALUATE[:4] + ["nmpc"] + EVALUATE[5:] + ["--jobs", "2", "--no-figures",
@@ -124,6 +126,7 @@ def test_a_signal_while_the_figures_are_drawn_still_writes_results_md(tmp_path, 
     assert "(0 executed, 2 resumed)" in done.stdout and "Figures: not all drawn" not in (out / "results.md").read_text()
 
 
+@pytest.mark.slow
 def test_campaign_jobs_1_sigterm_reports_k_of_n_incomplete(tmp_path):
     out = tmp_path / "c"
     proc = _run(tmp_path, "SIGTERM", "run:2", ["campaign", "--episodes", "3", "--controller", "nmpc", "--task",

@@ -17,6 +17,7 @@ from wt_inspect_env.turbine.mesh import build_turbine
 from wt_inspect_env.util.atomic_io import atomic_path
 
 
+@pytest.mark.slow
 def test_plan_writes_the_three_files_and_a_json_summary(tmp_path, capsys):
     out = tmp_path / "out" / "plan"            # created, parents included
     rc = cli.main(["plan", "--out", str(out), "--json", "--standoff", "8", "--spacing", "0.2"])
@@ -79,6 +80,7 @@ def test_plan_bad_input_exits_2_naming_the_field_and_writes_nothing(tmp_path, ca
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_plan_rotor_turn_auto_and_a_turbine_json(tmp_path, capsys):
     # a rotor stopped at 20 deg azimuth, facing 45 deg: the paper's 120 deg turn cannot inspect every
     # surface; with auto (the default on any turbine but the paper's) the planner chooses the turn
@@ -121,6 +123,7 @@ def test_atomic_write_leaves_nothing_on_failure(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["path.csv"]
 
 
+@pytest.mark.slow
 def test_bench_planner_json(capsys, monkeypatch):
     # the chosen-turn timing planned on the default turbine (0.2 s a plan) rather than the campaign's
     # NREL 5-MW (2.2 s, and timed twice): the same code path; that turbine's plans are checked in
@@ -133,6 +136,7 @@ def test_bench_planner_json(capsys, monkeypatch):
     assert {"plan_time_s", "ordering_time_s", "meets_targets"} <= set(out)
 
 
+@pytest.mark.slow
 def test_console_entry_point(tmp_path):
     """The installed ``wt-inspect`` command (through ``python -m``, so the test needs no PATH)."""
     res = subprocess.run([sys.executable, "-m", "wt_inspect.cli", "plan", "--out", str(tmp_path),

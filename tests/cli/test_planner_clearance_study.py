@@ -86,6 +86,7 @@ def test_the_distances_behind_the_verdict_equal_brute_force():
     assert d.min() >= cfg.d_min
 
 
+@pytest.mark.slow
 def test_the_study_writes_its_files_and_resumes(tmp_path, monkeypatch):
     argv = ["--turbines", "2", "--out", str(tmp_path), "--jobs", "1", "--no-progress"]
     assert pc.main(argv) == 0
@@ -110,6 +111,7 @@ def test_bad_arguments_name_the_option(tmp_path, capsys, argv, match):
     assert match in capsys.readouterr().err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("azimuth", [70.0, 90.0])
 def test_nrel_5mw_poses_whose_transit_needed_the_grid_search_get_clear_missions(azimuth):
     """The rotor-pose sweep found these: a root-end stand-off in the pocket between a blade root

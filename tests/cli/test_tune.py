@@ -110,6 +110,7 @@ def test_two_trials_write_best_weights_that_build_a_controller_and_a_rerun_resum
                                  storage=f"sqlite:///{out.resolve() / 'study.db'}").trials) == 4
 
 
+@pytest.mark.slow
 def test_a_trial_below_the_median_after_the_first_wind_is_pruned(tmp_path, monkeypatch):
     """The objective reports the running mean per wind; MedianPruner stops a poor trial before its
     second wind (the harness is replaced by a stub: the scores are set, not flown)."""

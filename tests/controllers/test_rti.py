@@ -94,6 +94,8 @@ def hard_vtnmpc_problem(cfg: VTNMPCConfig):
     return ocp, cfg.weights.stage_vector(), cfg.weights.terminal_vector(), x0, params
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_vtnmpc_sqp_matches_ipopt(cache_dir):
     cfg = VTNMPCConfig(solver=RTIOptions(cache_dir=cache_dir, qp_mode="balance", qp_tol=1e-8, qp_iter_max=100))
     ocp, W, WN, x0, params = hard_vtnmpc_problem(cfg)
@@ -120,6 +122,8 @@ def _stacked(ocp: OCP, w: np.ndarray, p: np.ndarray, W: np.ndarray, WN: np.ndarr
     return np.concatenate(res), np.concatenate(defects)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_qp_data_matches_finite_differences(cache_dir):
     cfg = VTNMPCConfig(horizon=6, solver=RTIOptions(cache_dir=cache_dir))
     ocp = build_ocp(cfg)
@@ -317,6 +321,8 @@ def test_missing_compiler_warns_and_runs_uncompiled(cache_dir, monkeypatch):
     assert rti.last_stats.status == "SUCCESS"
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_direct_hpipm_sqp_matches_ipopt_and_the_plugin(cache_dir):
     """qp_solver='hpipm' (HPIPM called directly, x_0 eliminated, finite bounds only) converges to
     IPOPT's solution, and one RTI step agrees with CasADi's HPIPM plugin where no bound is
@@ -346,6 +352,8 @@ def test_direct_hpipm_sqp_matches_ipopt_and_the_plugin(cache_dir):
     assert st_d.cost == pytest.approx(st_c.cost, rel=1e-12)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_direct_hpipm_with_active_state_bounds_and_its_fallback(cache_dir):
     """State bounds go to HPIPM as bounds of the states that have them (here the rate, active in
     the solution), path constraints as its general constraints (active too): both converge to
@@ -395,6 +403,8 @@ def test_qp_mu0_reaches_both_qp_paths(cache_dir):
         RTIOptions(qp_mu0=0.0)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_tangential_predictor_is_the_qp_solution_while_the_active_set_holds(cache_dir):
     """With tangential_predictor the preparation solves the QP for the plan's x_0 and its gains;
     the feedback for a nearby measurement is then the full QP's solution (no bound active here:

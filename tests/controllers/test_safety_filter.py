@@ -13,6 +13,7 @@ from wt_inspect.evaluation import registry
 from wt_inspect.studies import safety_filter as adv
 
 
+@pytest.mark.slow
 def test_a_policy_far_from_the_structure_flies_unchanged():
     env = gym.make("WindTurbineInspection-v0", time_limit_s=5.0)
     try:
@@ -39,6 +40,7 @@ def test_a_policy_far_from_the_structure_flies_unchanged():
 @pytest.mark.parametrize("name,k", [("tower", 0), pytest.param("blade", 1, marks=pytest.mark.slow),
                                     ("hold-inside", 5), pytest.param("tower", 6, marks=pytest.mark.slow),
                                     ("blade", 7), pytest.param("hold-inside", 11, marks=pytest.mark.slow)])
+@pytest.mark.slow
 def test_adversaries_that_collide_unfiltered_keep_d_min_filtered(name, k):
     """Seeded recoverable starts of the adversarial study (winds: none, gusts, Dryden):
     unfiltered these flights hit the turbine or pass well inside d_min; filtered they stay
@@ -91,6 +93,7 @@ def test_a_policy_without_act_or_predict_is_refused():
         env.close()
 
 
+@pytest.mark.slow
 def test_a_passed_step_is_the_qps_own_answer():
     """Pass-through skips the QP only where the QP would return the policy's command: beside the
     filter that passes, a filter with pass-through off is fed the same observations; on every

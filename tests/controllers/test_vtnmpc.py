@@ -296,6 +296,7 @@ def test_weights_switch_without_recompiling(policy):
         policy.set_weights("nonsense")
 
 
+@pytest.mark.slow
 def test_closed_loop_settles_on_a_moving_point(policy):
     """Model plant with rotor drag, no wind; point moving at 0.7 m/s along the surface."""
     cfg = policy.config
@@ -315,6 +316,7 @@ def test_closed_loop_settles_on_a_moving_point(policy):
 GUST_STEPS = 1300
 
 
+@pytest.mark.slow
 def test_gust_keeps_safety_metric_with_disturbance_observer(solver_options):
     """The paper's wind (4 m/s mean + sinusoid, along y) blowing along the surface normal, the
     hardest direction; a surface pass starting at the ideal pose (13 s)."""
@@ -330,6 +332,7 @@ def test_gust_keeps_safety_metric_with_disturbance_observer(solver_options):
     assert np.linalg.norm(pol.disturbance_estimate) > 1.0   # it did estimate the drag
 
 
+@pytest.mark.slow
 def test_gust_across_the_normal_keeps_safety_metric_with_paper_controller(policy):
     """Paper's controller unchanged: wind along y across a surface facing +x (blade edges)."""
     cfg = policy.config
@@ -361,6 +364,7 @@ def test_closed_loop_in_pybullet_sim_settles(policy):
     assert res.fallbacks == 0
 
 
+@pytest.mark.slow
 def test_gust_in_pybullet_sim_keeps_safety_metric(solver_options):
     QuadrotorSim, SimConfig = _sim()
     pol = VTNMPCPolicy(VTNMPCConfig(solver=solver_options, disturbance_observer=True))

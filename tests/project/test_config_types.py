@@ -99,6 +99,7 @@ def test_gym_make_refuses_strings_for_numbers(kw) -> None:
         gym.make("WindTurbineInspection-Surface-v0", **kw)
 
 
+@pytest.mark.slow
 def test_evaluate_cli_refuses_string_option_in_one_line(tmp_path) -> None:
     out = tmp_path / "ev"
     proc = subprocess.run([sys.executable, "-m", "wt_inspect.cli", "evaluate", "--scenario", "surface",

@@ -130,6 +130,7 @@ def test_fake_px4_refuses_offboard_without_a_setpoint_stream(world):
         fake.close()
 
 
+@pytest.mark.slow
 def test_a_normal_flight_streams_rates_and_thrust_then_holds(world, tmp_path):
     flight, fake = fly(world, tmp_path, fake_kw={"mode_delay_s": 0.4})
     assert flight.termination == "max_time"
@@ -146,6 +147,7 @@ def test_a_normal_flight_streams_rates_and_thrust_then_holds(world, tmp_path):
     assert {"COMMAND_LONG", "COMMAND_ACK", "HEARTBEAT", "PARAM_VALUE"} <= kinds
 
 
+@pytest.mark.slow
 def test_state_from_local_position_and_attitude_quaternion(world, tmp_path):
     flight, fake = fly(world, tmp_path, fake_kw={"odometry": False}, max_time=0.5)
     assert flight.termination == "max_time"
@@ -153,6 +155,7 @@ def test_state_from_local_position_and_attitude_quaternion(world, tmp_path):
     assert np.allclose(res.arrays["position"][0], world["x0"][0:3], atol=1e-3)
 
 
+@pytest.mark.slow
 def test_body_rate_command_reaches_the_vehicle_in_frd(world, tmp_path):
     """A positive FLU yaw rate (counter-clockwise) must arrive as a negative FRD yaw rate."""
     def yaw_left(p, obs):
@@ -168,6 +171,7 @@ def test_body_rate_command_reaches_the_vehicle_in_frd(world, tmp_path):
 
 
 # ------------------------------------------------------------------------------------ safety
+@pytest.mark.slow
 def test_geofence_box_floor(world, tmp_path):
     z0 = world["x0"][2]
     def sink(p, obs):
@@ -177,6 +181,7 @@ def test_geofence_box_floor(world, tmp_path):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 def test_geofence_clearance_to_the_mesh(world, tmp_path):
     """Pitch towards the blade (the drone faces it): the clearance falls below the limit."""
     def forward(p, obs):
@@ -202,6 +207,7 @@ def test_max_speed(world, tmp_path):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 def test_stale_state_holds(world, tmp_path):
     flight, fake = fly(world, tmp_path, during=_after(0.3, lambda f: setattr(f, "silence_state", True)),
                        max_time=3.0)
@@ -209,6 +215,7 @@ def test_stale_state_holds(world, tmp_path):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 def test_link_loss_holds_and_keeps_streaming(world, tmp_path):
     """Nothing comes back: the runner holds; the hold request reaches the vehicle (its uplink still
     works) but cannot be confirmed, and the stream never starved it while in OFFBOARD."""
@@ -229,6 +236,7 @@ def test_policy_exception_holds(world, tmp_path):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("bad, reason", [(np.nan, "non_finite_command"), (3.0, "command_out_of_range")])
 def test_invalid_command_holds(world, tmp_path, bad, reason):
     flight, fake = fly(world, tmp_path, lambda p, obs: p.hover if p.k < 20 else [0, 0, bad, 0], max_time=2.0)
@@ -238,6 +246,7 @@ def test_invalid_command_holds(world, tmp_path, bad, reason):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 def test_hung_policy_is_covered_by_the_streamer(world, tmp_path):
     """A policy that stops for 0.5 s: set-points keep flowing (keep-alive), the streamer switches to
     the hold set-point by itself and the flight ends in hold."""
@@ -251,6 +260,7 @@ def test_hung_policy_is_covered_by_the_streamer(world, tmp_path):
     assert_left_offboard_with_stream(fake, flight)
 
 
+@pytest.mark.slow
 def test_sigint_leaves_offboard_into_hold(world, tmp_path):
     def interrupt(fake):
         while not fake.in_offboard:
@@ -296,6 +306,7 @@ def test_refuses_a_preset_that_disagrees_with_mpc_thr_hover(world, tmp_path):
         fly(world, tmp_path, fake_kw={"hover_thrust": 0.65})
 
 
+@pytest.mark.slow
 def test_refuses_a_disarmed_vehicle_unless_asked_to_arm(world, tmp_path):
     with pytest.raises(FlightError, match="not armed"):
         fly(world, tmp_path, fake_kw={"armed": False})
@@ -303,6 +314,7 @@ def test_refuses_a_disarmed_vehicle_unless_asked_to_arm(world, tmp_path):
     assert fake.armed and flight.termination == "max_time"
 
 
+@pytest.mark.slow
 def test_geodetic_site_uses_the_vehicle_origin(world, tmp_path):
     from wt_inspect_px4.frames import ned_to_geodetic
     origin = (47.397742, 8.545594, 488.0)
@@ -330,6 +342,7 @@ def test_fly_and_sitl_have_help():
     assert Path(__file__).name.startswith("test_px4")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("cmd", ["fly", "sitl"])
 def test_without_the_px4_extra_the_commands_say_what_to_install(cmd):
     import subprocess

@@ -118,6 +118,8 @@ def test_approaches_end_on_the_same_step_as_pybullet_single():
         np.testing.assert_allclose(got[1], ref[1], atol=1e-9)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_approaches_end_on_the_same_step_as_pybullet_64_drones():
     tm = build_turbine()
     approaches = _approaches(tm)

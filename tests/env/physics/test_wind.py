@@ -71,6 +71,8 @@ def dryden_samples(w, duration, dt):
     return np.array([w(t, ONE)[0] for t in np.arange(0.0, duration, dt)])
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_dryden_statistics_match_the_model():
     """Standard deviations and autocorrelations of a long run against the Dryden model.
 

@@ -128,6 +128,8 @@ def test_default_turbine_has_12_surfaces_equal_to_the_long_faces(turb):
 @given(length=st.floats(5.0, 90.0), width_frac=st.floats(0.02, 0.3), thick_frac=st.floats(0.15, 1.0),
        step=st.floats(0.4, 4.0), azimuth=st.floats(-180, 180), facing=st.floats(-180, 180),
        spare=st.floats(1.0, 80.0))
+@pytest.mark.slow
+@pytest.mark.unit
 def test_random_turbines_cluster_into_their_12_long_faces(length, width_frac, thick_frac, step, azimuth,
                                                           facing, spare):
     width = width_frac * length
@@ -159,6 +161,8 @@ def test_clustering_a_loaded_soup_with_caps(turb, tmp_path):
 
 
 # --------------------------------------------------------------------------- ordering
+@pytest.mark.slow
+@pytest.mark.unit
 @settings(max_examples=60, deadline=None)
 @given(n=st.integers(0, 6), seed=st.integers(0, 2 ** 32 - 1), p_forbid=st.sampled_from([0.0, 0.2, 0.5]))
 def test_held_karp_equals_brute_force(n, seed, p_forbid):
@@ -432,6 +436,8 @@ def oracle_trims(turb, g, standoff, cfg, reach, h=0.01, margin=0.75):
 @example(length=59.0, width_frac=0.09375, step=1.0, spare=5.0, standoff=6.0)
 # a 9.6 m chord (6.7 m hub) at 6 m: no stand-off 6 m behind the back faces' roots clears the hub at
 # any rotor position (it is round): truly infeasible, and the planner must say so
+@pytest.mark.slow
+@pytest.mark.unit
 @example(length=80.0, width_frac=0.12, step=1.0, spare=5.0, standoff=6.0)
 def test_random_turbines_get_complete_clear_plans(length, width_frac, step, spare, standoff):
     width = width_frac * length
@@ -569,6 +575,8 @@ def test_chosen_rotor_positions_inspect_every_surface(azimuth, facing):
         assert p.rotor_turns_deg == p0.rotor_turns_deg
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 @pytest.mark.parametrize("azimuth,facing", [(20.0, 45.0)])
 def test_one_chosen_turn_is_the_best_fixed_turn(azimuth, facing):
     """Brute force over the candidate grid: every fixed turn planned on its own; the chosen plan is
@@ -592,6 +600,8 @@ def test_one_chosen_turn_is_the_best_fixed_turn(azimuth, facing):
             plan_inspection(t, rotor_turn_deg=120.0)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_the_upright_y_needs_two_turns():
     """Azimuth 60 deg: no single turn of the grid makes every surface inspectable (each fixed turn
     refused), the chosen plan turns twice, and each turn inspects surfaces."""
@@ -681,6 +691,8 @@ def test_multi_phase_ordering_equals_brute_force(sizes, seed):
     assert total == pytest.approx(best, rel=1e-12, abs=1e-9)
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_env_flies_a_turbine_at_any_azimuth():
     """gym.make with rotor_turn_deg=None: the upright Y (azimuth 60) gets three rotor positions;
     mission.turbines holds one turbine per phase and mission.phase runs 1..3 (what the env and the

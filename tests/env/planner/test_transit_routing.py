@@ -46,6 +46,8 @@ def test_a_wall_the_short_detours_cannot_pass_is_routed_around_clear_of_it():
     assert 2 * math.hypot(3.0, 5.0 + clr.clearance) - 1e-6 <= polyline_length(route) <= 20.0
 
 
+@pytest.mark.slow
+@pytest.mark.unit
 def test_an_enclosed_end_has_no_route():
     """The start inside a closed box: no path, and the error names both ends."""
     box = _box((-4, -4, -4), (4, 4, 4))

@@ -119,6 +119,7 @@ time.sleep(300)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("when", ["named", "starting"])
 def test_the_reaper_kills_the_instance_not_the_drivers_other_children(tmp_path, when) -> None:
     """A stand-in for a driver with a private Ray instance, SIGKILLed after the reaper was told the

@@ -109,6 +109,7 @@ def test_equivalence_through_the_rotor_turn():
     assert seen["max_phase"] == 2
 
 
+@pytest.mark.slow
 def test_pose_error_limit_matches_the_single_env():
     # 1.5 m start noise against a 1.2 m limit: some drones end with "lost_pose", in both envs at the same step
     seen = _run_side_by_side(4, 150, start_noise=1.5, pose_error_limit=1.2, time_limit_s=1.0)

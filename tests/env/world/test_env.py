@@ -320,6 +320,7 @@ def _fly_to_the_end(env, action):
     return term, trunc, info
 
 
+@pytest.mark.slow
 def test_a_mission_that_falls_behind_ends_by_its_time_limit():
     """A hovering drone, stalls only after 10,000 s without progress, and a time limit 10 s over
     the nominal mission (+ the end hold and the deadline margin): the point waits 2 m ahead until
@@ -348,6 +349,7 @@ def test_a_mission_that_falls_behind_ends_by_its_time_limit():
     env.close()
 
 
+@pytest.mark.slow
 def test_a_drone_that_never_follows_ends_its_mission_with_a_recorded_stall():
     """The closed-loop reference does not wait for ever: a hovering drone (still air) lets it run
     2 m ahead and wait ``reference_stall_time``; by default (``reference_on_stall="skip"``) the

@@ -26,6 +26,7 @@ def _start_clearance(**options) -> tuple[np.ndarray, np.ndarray]:
         env.close()
 
 
+@pytest.mark.slow
 def test_every_near_start_lies_within_the_distance_and_a_share_of_them_is_drawn():
     _, uniform = _start_clearance()
     _, near = _start_clearance(start_near_structure=1.0, start_near_distance=3.5)
@@ -36,6 +37,7 @@ def test_every_near_start_lies_within_the_distance_and_a_share_of_them_is_drawn(
     assert 0.4 < np.mean(half < 3.5) < 0.75
 
 
+@pytest.mark.slow
 def test_near_starts_are_seeded_and_without_the_option_the_stream_is_unchanged():
     a, _ = _start_clearance(start_near_structure=0.5, start_near_distance=3.5)
     b, _ = _start_clearance(start_near_structure=0.5, start_near_distance=3.5)

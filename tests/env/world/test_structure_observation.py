@@ -117,6 +117,7 @@ def test_clearance_limit_ends_the_episode_too_close_with_the_crash_penalty():
             env.close()
 
 
+@pytest.mark.slow
 def test_noisy_starts_inside_the_clearance_limit_are_drawn_again():
     """Full mission, 0.5 m start noise, starts anywhere along the path (256 drones, 4 resets):
     without a limit some starts round the hub and blade roots lie inside 2.9 m of the mesh (the
