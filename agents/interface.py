@@ -65,6 +65,10 @@ class BatchedFeatures:
         self.last_action = np.zeros((n, 4))
         self.hdir = np.tile([1.0, 0.0, 0.0], (n, 1))
         self.err = np.zeros((n, 3))
+        # the ideal pose's velocity beyond the point's: d_ref times the horizontal normal's turn
+        # per second, by finite differences between updates (0 on an episode's first update)
+        self.pose_turn = np.zeros((n, 3))
+        self._fresh = np.ones(n, dtype=bool)
         self._obs: dict[str, np.ndarray] = {}
         self._R = np.tile(np.eye(3), (n, 1, 1))
 
@@ -73,6 +77,8 @@ class BatchedFeatures:
         self.integral[idx] = 0.0
         self.last_action[idx] = 0.0
         self.hdir[idx] = [1.0, 0.0, 0.0]
+        self.pose_turn[idx] = 0.0
+        self._fresh[idx] = True
 
     def note_action(self, u: np.ndarray, idx: Any = slice(None)) -> None:
         """Remember the policy actions now being applied (the ``last_action`` feature)."""
@@ -95,7 +101,11 @@ class BatchedFeatures:
         o = {k: np.asarray(v, dtype=np.float64) for k, v in obs.items()}
         if len(o["position"]) == 0:
             return
+        h_before = self.hdir[idx].copy()
         err = self.ideal_positions(idx, o["normal"], o["point"]) - o["position"]
+        turn = self.standoff * (self.hdir[idx] - h_before) / self.dt
+        self.pose_turn[idx] = np.where(self._fresh[idx][:, None], 0.0, turn)
+        self._fresh[idx] = False
         # exact (zero-order-hold) discretisation of dI/dt = e - I / T: I -> T e for a constant e
         integ = self.integral[idx] * self._decay + self._gain * err
         n = np.linalg.norm(integ, axis=1)
@@ -130,6 +140,8 @@ class BatchedFeatures:
                 parts.append(body(point - x) / self.standoff)
             elif g == "velocity_body":
                 parts.append((o["velocity_body"] - body(o["point_velocity"])) / cfg.velocity_scale)
+            elif g == "pose_velocity_body":
+                parts.append((o["velocity_body"] - body(o["point_velocity"] + self.pose_turn)) / cfg.velocity_scale)
             elif g == "gravity_body":
                 parts.append(-R[:, 2, :])
             elif g == "heading":

@@ -8,31 +8,38 @@ the change of frame, but with a 2 M step budget every transform it has to learn 
 an agent here sees the quantities a flight-control engineer would feed a tracking controller, in
 the body frame where the rate/thrust command acts, scaled to O(1):
 
-==================  ====  =========================================================================
-group               size  feature
-==================  ====  =========================================================================
-``ideal_body``      3     ``R^T (q - x) / position_scale``: drone to the ideal stand-off pose
-                          ``q = p + d_ref n_xy/|n_xy|`` (the env's definition) - zero at the pose
-``point_body``      3     ``R^T (p - x) / d_ref``: drone to the inspection point (camera aim)
-``velocity_body``   3     ``(v_body - R^T v_point) / velocity_scale``: velocity relative to the point
-``gravity_body``    3     ``R^T (0, 0, -1)``: attitude as the gravity direction (no quaternion sign
-                          ambiguity, no yaw, which the task does not care about)
-``heading``         2     ``(sin, cos)`` of the horizontal angle from the body x axis (camera) to the
-                          point: (0, 1) when centred (the paper's h is its cosine)
-``body_rates``      3     measured body rates / max command rate
-``normal_body``     3     ``R^T n``: the surface normal in the body frame
-``integral``        3     ``R^T I / (integral_time_s position_scale)`` with ``I`` a leaky integral
-                          (time constant ``integral_time_s``) of the world-frame pose error: lets a
-                          memoryless network learn integral action against the mean wind (the wind
-                          is not observed, as on a real drone)
-``last_action``     4     the policy's previous action (smoothness; the held command is part of the
-                          state when actions are repeated)
-``progress``        1     mission progress in [0, 1]
-``coverage``        1     coverage so far in [0, 1]
-``structure_body``  4     ``R^T (c - x) / d_ref`` and ``|c - x| / d_ref`` with ``c`` the nearest point
-                          of the turbine (the env's ``structure`` entry: ``structure_observation=True``):
-                          what the agent needs to keep d_min by itself
-==================  ====  =========================================================================
+======================  ====  =========================================================================
+group                   size  feature
+======================  ====  =========================================================================
+``ideal_body``          3     ``R^T (q - x) / position_scale``: drone to the ideal stand-off pose
+                              ``q = p + d_ref n_xy/|n_xy|`` (the env's definition) - zero at the pose
+``point_body``          3     ``R^T (p - x) / d_ref``: drone to the inspection point (camera aim)
+``velocity_body``       3     ``(v_body - R^T v_point) / velocity_scale``: velocity relative to the point
+``pose_velocity_body``  3     ``(v_body - R^T v_q) / velocity_scale``: velocity relative to the ideal pose
+                              ``q``, ``v_q = v_point + d_ref dn_xy/dt`` (the turn of the horizontal normal
+                              by finite differences between control steps; 0 on an episode's first). Where
+                              the normal turns - round a blade tip or the hub - the pose swings on a
+                              ``d_ref`` lever while the point hardly moves, so ``velocity_body`` tells the
+                              agent to stop where it has to move: the feed-forward a tracking controller
+                              takes from its reference
+``gravity_body``        3     ``R^T (0, 0, -1)``: attitude as the gravity direction (no quaternion sign
+                              ambiguity, no yaw, which the task does not care about)
+``heading``             2     ``(sin, cos)`` of the horizontal angle from the body x axis (camera) to the
+                              point: (0, 1) when centred (the paper's h is its cosine)
+``body_rates``          3     measured body rates / max command rate
+``normal_body``         3     ``R^T n``: the surface normal in the body frame
+``integral``            3     ``R^T I / (integral_time_s position_scale)`` with ``I`` a leaky integral
+                              (time constant ``integral_time_s``) of the world-frame pose error: lets a
+                              memoryless network learn integral action against the mean wind (the wind
+                              is not observed, as on a real drone)
+``last_action``         4     the policy's previous action (smoothness; the held command is part of the
+                              state when actions are repeated)
+``progress``            1     mission progress in [0, 1]
+``coverage``            1     coverage so far in [0, 1]
+``structure_body``      4     ``R^T (c - x) / d_ref`` and ``|c - x| / d_ref`` with ``c`` the nearest point
+                              of the turbine (the env's ``structure`` entry: ``structure_observation=True``):
+                              what the agent needs to keep d_min by itself
+======================  ====  =========================================================================
 
 Every feature is clipped to ``[-clip, clip]`` (large errors saturate instead of dominating).
 
@@ -85,7 +92,7 @@ from .interface import BatchedDecoder, BatchedFeatures, camera_heading, check_en
 FEATURE_SIZES: dict[str, int] = {
     "ideal_body": 3, "point_body": 3, "velocity_body": 3, "gravity_body": 3, "heading": 2,
     "body_rates": 3, "normal_body": 3, "integral": 3, "last_action": 4, "progress": 1, "coverage": 1,
-    "structure_body": 4,
+    "structure_body": 4, "pose_velocity_body": 3,
 }
 
 ACTION_MODES: tuple[str, ...] = ("rates", "attitude")

@@ -97,6 +97,32 @@ def test_velocity_is_relative_to_the_moving_point_and_gravity_shows_the_tilt():
     assert f["gravity_body"][1] == pytest.approx(-math.sin(roll))
 
 
+def test_pose_velocity_is_the_swing_of_the_pose_round_a_turning_normal():
+    """Round a blade tip the point stands still while its normal turns at omega: the stand-off pose
+    q = p + d n moves at d omega (tangential). A drone flying with q sees a zero pose velocity
+    (to the finite difference's O(omega dt) error) and a velocity relative to the point of d omega;
+    on an episode's first update (no previous normal) the pose velocity is the point's."""
+    cfg = FeatureConfig(groups=("velocity_body", "pose_velocity_body"), velocity_scale=1.0)
+    enc = FeatureEncoder(cfg, standoff=7.0, dt=0.01, max_rate=np.deg2rad(100))
+    omega, p = 0.5, np.array([0.0, 0.0, 10.0])
+    q = yaw_to_quat(0.0)                      # body = world: velocities compare directly
+
+    def at(t):
+        n = np.array([math.cos(omega * t), math.sin(omega * t), 0.0])
+        v = 7.0 * omega * np.array([-math.sin(omega * t), math.cos(omega * t), 0.0])
+        return _obs(p + 7.0 * n, q, point=p, normal=n, velocity_body=v)
+
+    first = _split(cfg, enc.update(at(0.0)))
+    np.testing.assert_allclose(first["pose_velocity_body"], first["velocity_body"], atol=1e-12)
+    for k in range(1, 50):
+        f = _split(cfg, enc.update(at(0.01 * k)))
+    assert np.linalg.norm(f["velocity_body"]) == pytest.approx(3.5, rel=1e-5)    # float32 features
+    assert np.linalg.norm(f["pose_velocity_body"]) < 0.02       # d omega^2 dt / 2 = 0.0088 m/s
+    enc.reset()                                                 # a new episode forgets the turn
+    again = _split(cfg, enc.update(at(1.0)))
+    np.testing.assert_allclose(again["pose_velocity_body"], again["velocity_body"], atol=1e-12)
+
+
 def test_integral_feature_approaches_the_error_and_clip_bounds_everything():
     enc = _encoder(position_scale=2.0, integral_time_s=1.0, clip=5.0)
     o = _obs([0.0, 8.0, 10.0], [0, 0, 0, 1])       # 1 m beyond the stand-off along +y
