@@ -56,6 +56,18 @@ def test_every_controller_gets_the_same_episodes() -> None:
     assert {s.controller for s in s2} == {"ppo:ppo_full_vec128"}
 
 
+def test_an_agent_that_observes_the_structure_gets_it_in_every_episode() -> None:
+    cfg = cp.CampaignConfig(episodes=4, seed=5)
+    d1, s1 = cp.campaign_specs(cfg)
+    d2, s2 = cp.campaign_specs(dataclasses.replace(cfg, controller="ppo:ppo_full_scratch_ff"))
+    assert d1 == d2
+    assert all(s.env_options.get("structure_observation") is True for s in s2)
+    assert not any("structure_observation" in s.env_options for s in s1)
+    # otherwise the same episodes
+    assert [{k: v for k, v in s.env_options.items() if k != "structure_observation"} for s in s2] == \
+           [s.env_options for s in s1]
+
+
 def test_the_default_is_no_time_cap(tmp_path) -> None:
     args = cp.build_parser("x").parse_args(["--out", str(tmp_path)])
     assert args.max_time is None and cp.CampaignConfig().max_time is None

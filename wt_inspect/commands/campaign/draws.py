@@ -165,13 +165,17 @@ def episode_options(draw: Mapping[str, Any], task: str, airframe_randomization: 
 
 
 def campaign_specs(cfg: CampaignConfig) -> tuple[list[dict[str, Any]], list[RunSpec]]:
-    """The draws and run specs of the episodes the campaign flies (all, or ``cfg.only``)."""
+    """The draws and run specs of the episodes the campaign flies (all, or ``cfg.only``). The
+    controller's runs get the env options it needs (an agent that observes the structure), as in
+    ``evaluate``; the drawn options take precedence."""
     registry.check_controller(cfg.controller)
+    needs = registry.env_options(cfg.controller)
     draws = draw_episodes(cfg)
     if cfg.only is not None:
         draws = [draws[k] for k in cfg.only]
     specs = [make_spec(SCENARIO, cfg.controller, d["wind"], d["seed"],
-                       episode_options(d, cfg.task, cfg.airframe_randomization), cfg.max_time, cfg.record_every)
+                       {**needs, **episode_options(d, cfg.task, cfg.airframe_randomization)},
+                       cfg.max_time, cfg.record_every)
              for d in draws]
     return draws, specs
 
