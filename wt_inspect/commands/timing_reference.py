@@ -18,7 +18,7 @@ import pybullet as p
 
 from wt_inspect_env.physics.quadrotor import QuadrotorParams
 from wt_inspect_env.util.process_memory import rss_mb  # noqa: F401 - the benchmarks' memory figure, re-exported
-from wt_inspect_env.world.sim import _mesh_arrays, create_drone_body, new_client
+from wt_inspect_env.world.batched_sim import _mesh_arrays, create_drone_body, new_client
 
 
 def raw_pybullet_rate(params: QuadrotorParams, ctrl_hz: float = 100.0, physics_hz: float = 400.0,

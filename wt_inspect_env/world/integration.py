@@ -1,9 +1,9 @@
 """Advancing drones one control step: the compiled core in free flight, PyBullet where they may touch.
 
-:class:`DroneIntegrator` is the one stepping loop of both simulators (the single
-:class:`~wt_inspect_env.world.sim.QuadrotorSim` is its ``n = 1`` case, the batched
-:class:`~wt_inspect_env.world.batched_sim.BatchedQuadrotorSim` any ``n``). Each control step it splits
-the drones in two:
+:class:`DroneIntegrator` is the stepping loop of the simulator
+(:class:`~wt_inspect_env.world.batched_sim.BatchedQuadrotorSim`, any ``n``; the single
+:class:`~wt_inspect_env.world.sim.QuadrotorSim` is its front with ``n = 1``). Each control step it
+splits the drones in two:
 
 * **free** drones - those that provably cannot touch the ground or their turbine before the step
   ends - are advanced through all physics sub-steps by one call into the compiled
@@ -84,6 +84,11 @@ class DroneIntegrator:
     def set_obstacle(self, i: int, proximity: MeshProximity | None) -> None:
         """Drone ``i`` collides with the mesh of ``proximity`` from now on (None: no obstacle)."""
         self._obstacles[i] = proximity
+        self._free[i] = -_FAR
+
+    def forget_clearance(self, i: int) -> None:
+        """Drone ``i``'s clearance to its turbine is measured again before its next free step
+        (its obstacle was put back in place)."""
         self._free[i] = -_FAR
 
     def set_mask(self, i: int, mask: int) -> None:

@@ -373,6 +373,83 @@ def test_obstacle_mesh_contacts_replacement_and_ray_casts():
             assert not sim.in_collision
 
 
+def test_kept_obstacles_are_out_of_the_world_until_selected_again():
+    """Up to four meshes keep their bodies (parked while unused, re-selected without a new body);
+    whatever the ray's mask, only the active one is hit; None leaves the ground only."""
+    import pybullet as p
+
+    from wt_inspect_env.world.sim import RAY_MASK_WITHOUT_DRONE
+    walls = [trimesh.creation.box(extents=[1.0, 10.0, 10.0]).apply_translation([3.0 + k, 0.0, 10.0])
+             for k in range(5)]
+
+    def hit(sim):
+        h = p.rayTestBatch([[0, 0, 10.0]], [[10, 0, 10.0]], collisionFilterMask=RAY_MASK_WITHOUT_DRONE,
+                           physicsClientId=sim.client)[0]
+        return h[0], h[2] * 10.0
+
+    with QuadrotorSim(M100, SimConfig(), obstacles=walls[0]) as sim:
+        ids = [sim.obstacle_id]
+        for k in range(1, 4):
+            sim.set_obstacles(walls[k])
+            ids.append(sim.obstacle_id)
+            assert hit(sim) == (ids[-1], pytest.approx(2.5 + k))
+        sim.set_obstacles(walls[1])                      # kept: the same body again
+        assert sim.obstacle_id == ids[1] and hit(sim) == (ids[1], pytest.approx(3.5))
+        sim.set_obstacles(walls[4])                      # a fifth mesh replaces the oldest (walls[0])
+        assert sim.obstacle_id not in ids and hit(sim) == (sim.obstacle_id, pytest.approx(6.5))
+        sim.set_obstacles(None)
+        assert sim.obstacle_id == -1 and hit(sim)[0] == -1
+        x0 = hover_state([0, 0, 10.0])
+        x0[3] = 3.0
+        sim.reset(x0)
+        for _ in range(150):                             # through all five walls' places
+            sim.step([0, 0, 0, M100.weight])
+            assert not sim.in_collision
+
+
+def test_a_drone_of_the_batched_core_flies_as_the_single_simulator_bit_for_bit():
+    """QuadrotorSim is the batched core with one drone: a drone among others of a batched
+    simulator, in the same wind, plant, start and commands, flies its trajectory to the bit -
+    into a blade, with contacts."""
+    from wt_inspect_env.turbine.mesh import build_turbine
+    from wt_inspect_env.world.batched_sim import BatchedQuadrotorSim
+    tm = build_turbine()
+    i = int(np.argmax(tm.blade_areas))
+    start = hover_state(tm.blade_centroids[i] + 3.0 * tm.blade_normals[i])
+    start[3:6] = -2.0 * tm.blade_normals[i]
+    plant = M100.replace(mass=1.1 * M100.mass)
+    rates = [0.1, 0.0, -0.1]
+
+    def wind():
+        return DrydenWind(mean_speed=5.0, altitude=40.0, direction=-tm.blade_normals[i])
+
+    def command(k):
+        return [0.05 * math.sin(0.1 * k), 0.0, 0.02, M100.weight]
+
+    with QuadrotorSim(M100, SimConfig(), wind=wind(), obstacles=tm.mesh) as single:
+        single.set_plant(plant, 0.95)
+        single.reset(start, body_rates=rates, seed=4)
+        alone = []
+        for k in range(200):
+            single.step(command(k))
+            x = single.state
+            alone.append(np.r_[x[0:3], x[6:10], single.world_velocity, single.integrator.core.omega[0],
+                               single.rotor_thrusts, single.in_collision])
+    alone = np.array(alone)
+    assert alone[:, -1].any()
+    with BatchedQuadrotorSim(M100, SimConfig(), 3, geometries=[tm.mesh], winds=[GustWind(), wind(), None]) as sim:
+        sim.set_plant(1, plant, 0.95)
+        sim.reset_drone(0, hover_state([0.0, -30.0, 20.0]))
+        sim.reset_drone(1, start, body_rates=rates, seed=4)
+        sim.reset_drone(2, start)                        # in the same place: drones do not collide
+        together = []
+        for k in range(200):
+            sim.step(np.array([[0.3, 0.0, 0.0, M100.weight], command(k), [0.0, 0.0, 0.0, 0.0]]))
+            together.append(np.r_[sim.pos[1], sim.quat[1], sim.vel[1], sim.omega[1], sim.f[1] * sim.thrust_scales[1],
+                                  sim.in_collision[1]])
+    np.testing.assert_array_equal(np.array(together), alone)
+
+
 def test_enable_gui_without_display_is_a_clear_error(monkeypatch):
     monkeypatch.delenv("DISPLAY", raising=False)
     monkeypatch.setattr("sys.platform", "linux")
