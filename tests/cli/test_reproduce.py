@@ -54,6 +54,26 @@ def _tiny_checkout(tmp_path: Path) -> Path:
     return tmp_path
 
 
+def test_a_study_listed_for_its_flown_digests_stays_listed_when_the_check_does_not_fly(tmp_path):
+    root = _tiny_checkout(tmp_path)
+    smw = reproduce.load_manifest(root / reproduce.MANIFEST)[1]
+    prov = {"study": "smw", "commands": list(smw.commands), "complete": True, "code": "000000000000",
+            "behaviour": {"seconds": 20.0, "runs": [{"run": "x", "digest": {}}]}}
+    (root / smw.folder / "provenance.json").write_text(json.dumps(prov))
+    (root / "results/STALE.md").write_text("| study | reason | measured difference |\n|---|---|---|\n"
+                                           "| smw | flies differently here | 17 m |\n")
+    out = io.StringIO()
+    reproduce.check(root, [smw], out=out, fly=False)
+    assert "still listed" not in out.getvalue() and "1 stale (1 of them listed" in out.getvalue()
+    # a listed study judged by its code version is known to be current without flying: it must go
+    del prov["behaviour"]
+    prov["code"] = reproduce.code_version(smw)
+    (root / smw.folder / "provenance.json").write_text(json.dumps(prov))
+    out = io.StringIO()
+    assert reproduce.check(root, [smw], out=out, fly=False) == 1 and "still listed in results/STALE.md: smw" in \
+        out.getvalue()
+
+
 @pytest.mark.slow
 def test_run_writes_provenance_and_check_follows_it(tmp_path, monkeypatch):
     monkeypatch.setenv("MPLBACKEND", "Agg")
