@@ -17,7 +17,6 @@ that :func:`agents.policy.load_sb3_policy` would refuse.
 from __future__ import annotations
 
 import argparse
-import json
 import re
 import shutil
 import sys
@@ -25,20 +24,18 @@ from pathlib import Path
 
 from wt_inspect_env.util.atomic_io import atomic_paths
 
-from .policy import load_sb3_policy, sidecar_paths
+from .policy import load_sb3_policy, load_sidecar, sidecar_paths
 from .safe_load import MODELS_DIR, write_manifest
 
 _NAME = re.compile(r"^[a-z][a-z0-9_]*$")
 
 
-def _check_source(source: Path) -> list[Path]:
+def _check_source(source: Path) -> tuple[list[Path], str]:
+    """The source's files that exist (zip, sidecar, normalisation statistics if any) and its algorithm."""
     if source.suffix != ".zip" or not source.is_file():
         raise ValueError(f"source {str(source)!r} is not a model .zip file")
-    files = list(sidecar_paths(source))          # zip, sidecar, normalisation statistics (optional)
-    if not files[1].is_file():
-        raise ValueError(f"source {str(source)!r} has no {files[1].name!r} beside it "
-                         "(saved by agents.policy.save_agent)")
-    return [f for f in files if f.is_file()]
+    algo = str(load_sidecar(source).get("algo"))      # ValueError naming the sidecar if missing or invalid
+    return [f for f in sidecar_paths(source) if f.is_file()], algo
 
 
 def ship_model(source: str | Path, name: str, *, models_dir: Path | None = None, overwrite: bool = False) -> list[Path]:
@@ -52,8 +49,8 @@ def ship_model(source: str | Path, name: str, *, models_dir: Path | None = None,
     models_dir = MODELS_DIR if models_dir is None else Path(models_dir)
     if not isinstance(name, str) or not _NAME.match(name):
         raise ValueError(f"name {name!r} must be lower-case letters, digits and _ (starting with a letter)")
-    files = _check_source(source)
-    load_sb3_policy(_algo_of(files[1]), source)   # refuses unsafe or broken files
+    files, algo = _check_source(source)
+    load_sb3_policy(algo, source)   # refuses unsafe or broken files
     target = models_dir / f"{name}.zip"
     if target.exists() and not overwrite:
         raise ValueError(f"name {name!r}: {str(target)!r} exists (pass overwrite=True / --overwrite to replace it)")
@@ -69,13 +66,6 @@ def ship_model(source: str | Path, name: str, *, models_dir: Path | None = None,
         stale.unlink(missing_ok=True)
     write_manifest(models_dir)
     return [d for _, d in pairs]
-
-
-def _algo_of(sidecar: Path) -> str:
-    try:
-        return str(json.loads(sidecar.read_text())["algo"])
-    except (OSError, KeyError, ValueError) as exc:
-        raise ValueError(f"sidecar {str(sidecar)!r} names no algorithm ({exc})") from None
 
 
 def main(argv: list[str] | None = None) -> int:

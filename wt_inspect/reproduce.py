@@ -471,8 +471,7 @@ def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
         for s, cmds in steps:
             why = staleness(root, s, fp, fly=False)
             state = "stale: " + why if why else (
-                "behaviour recorded (--check re-flies it)" if (read_provenance(root, s) or {}).get("behaviour")
-                else "current")
+                "behaviour recorded (--check re-flies it)" if _judged_by_flight(root, s) else "current")
             print(f"{s.name}  ({s.folder}; {state})")
             for c in cmds:
                 print(f"    {c}")

@@ -49,6 +49,14 @@ RAY_MASK_WITHOUT_DRONE = 0xFFFF & ~DRONE_COLLISION_GROUP   # rays that do not se
 _MAX_CACHED_OBSTACLES = 4
 
 
+def _to_body(q: list[float], v: list[float]) -> tuple[float, float, float]:
+    """World vector ``v`` in the body frame of quaternion ``q`` (R^T v, R from Bullet), in scalar
+    arithmetic so a state read back is the same to the bit as it always was."""
+    R = p.getMatrixFromQuaternion(q)
+    x, y, z = v
+    return (R[0] * x + R[3] * y + R[6] * z, R[1] * x + R[4] * y + R[7] * z, R[2] * x + R[5] * y + R[8] * z)
+
+
 class QuadrotorSim:
     """A PyBullet quadrotor with a PX4-like rate loop, motor lag, drag and wind (see module doc)."""
 
@@ -237,19 +245,13 @@ class QuadrotorSim:
         """(10,) [position, body velocity, quaternion (x, y, z, w)], the model's convention."""
         sim = self._sim
         q = sim.quat[0].tolist()
-        R = p.getMatrixFromQuaternion(q)
-        vx, vy, vz = sim.vel[0].tolist()
-        return np.array([*sim.pos[0].tolist(), R[0] * vx + R[3] * vy + R[6] * vz,
-                         R[1] * vx + R[4] * vy + R[7] * vz, R[2] * vx + R[5] * vy + R[8] * vz, *q])
+        return np.array([*sim.pos[0].tolist(), *_to_body(q, sim.vel[0].tolist()), *q])
 
     @property
     def body_rates(self) -> np.ndarray:
         """(3,) body angular velocity (p, q, r) [rad/s]."""
         sim = self._sim
-        R = p.getMatrixFromQuaternion(sim.quat[0].tolist())
-        ox, oy, oz = sim.omega[0].tolist()
-        return np.array([R[0] * ox + R[3] * oy + R[6] * oz, R[1] * ox + R[4] * oy + R[7] * oz,
-                         R[2] * ox + R[5] * oy + R[8] * oz])
+        return np.array(_to_body(sim.quat[0].tolist(), sim.omega[0].tolist()))
 
     @property
     def world_velocity(self) -> np.ndarray:
