@@ -122,3 +122,46 @@ def test_check_reports_a_study_whose_behaviour_changed(tmp_path, monkeypatch):
     assert reproduce.check(root, studies, out=out) == 1
     assert "stale, not in results/STALE.md: a (results/a): behaviour differs" in out.getvalue()
     assert "1 current, 1 stale" in out.getvalue()
+
+
+def test_the_noise_envelope_is_the_largest_spread_of_the_twins_so_far():
+    t, pos, vel = _trajectory()
+    flown = behaviour.digest(t, pos, vel)
+    bump = pos.copy()
+    bump[500:600] += [0.0, 0.003, 0.0]                  # a twin 3 mm off at t = 5 s only
+    late = pos.copy()
+    late[1200:] += [0.001, 0.0, 0.0]                     # another 1 mm off from t = 12 s
+    short = behaviour.digest(t[:1050], pos[:1050], vel[:1050])    # a twin that ended at 10.49 s
+    env = behaviour.noise_envelope(flown, [behaviour.digest(t, bump, vel), behaviour.digest(t, late, vel)])
+    expected = np.where(np.arange(1, 21) >= 5, 0.003, 0.0)       # never forgotten once reached
+    np.testing.assert_allclose(env["position"], expected, atol=1e-9)
+    np.testing.assert_allclose(env["velocity"], 0.0, atol=1e-9)
+    env = behaviour.noise_envelope(flown, [short])
+    assert np.all(np.isinf(env["position"][10:])) and np.all(env["position"][:10] == 0.0)
+
+
+def test_compare_forgives_a_difference_within_the_runs_own_noise_and_nothing_more():
+    t, pos, vel = _trajectory()
+    recorded = behaviour.digest(t, pos, vel)
+    moved = pos.copy()
+    moved[700:] += [0.0, 0.0, 0.01]                                  # 1 cm from t = 7 s on
+    flown = behaviour.digest(t, moved, vel)
+    noise = {"position": np.where(np.arange(1, 21) >= 7, 0.004, 0.0), "velocity": np.zeros(20)}
+    assert behaviour.compare(recorded, flown) != ""                 # beyond 2 mm without the twins
+    assert behaviour.compare(recorded, flown, noise=noise) == ""    # 1 cm < 5 x 4 mm
+    quiet = {"position": np.full(20, 0.001), "velocity": np.zeros(20)}
+    assert behaviour.compare(recorded, flown, noise=quiet).startswith("position at t = 7 s")   # 1 cm > 5 x 1 mm
+
+
+def test_a_noise_twin_moves_only_the_start():
+    run = behaviour.study_runs(["wt-inspect evaluate --scenario paper --controllers vtnmpc --winds 4 "
+                                "--out results/x --no-progress"])[0]
+    twin = behaviour.noise_twin(run, 1e-10)
+    assert twin.spec.env_options["start_offset"] == pytest.approx([1e-10] * 3, abs=0)
+    assert {k: v for k, v in twin.spec.env_options.items() if k != "start_offset"} == {
+        k: v for k, v in run.spec.env_options.items() if k != "start_offset"}
+    assert replace(twin.spec, env_options=run.spec.env_options) == run.spec
+    adv = behaviour.study_runs(["wt-inspect study safety-filter --starts 1 --out x"])[0]
+    assert behaviour.noise_twin(adv, 1e-8).spec == {**adv.spec, "start_offset_m": 1e-8}
+    camp = behaviour.study_runs(["wt-inspect campaign --episodes 1 --controllers vtnmpc --out x"])[0]
+    assert behaviour.noise_twin(camp, 1e-10) is None                  # a campaign chooses its own start

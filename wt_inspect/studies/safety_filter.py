@@ -228,7 +228,8 @@ def _policy(scene: Scene, k: int, filtered: bool) -> Any:
 
 
 def trajectory(flight: Mapping[str, Any], seconds: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The first ``seconds`` of one planned flight: time, position and world velocity."""
+    """The first ``seconds`` of one planned flight: time, position and world velocity. A flight's
+    ``start_offset_m`` (optional) moves its start in x, y and z (the behaviour digests' noise twin)."""
     import gymnasium as gym
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
@@ -237,8 +238,9 @@ def trajectory(flight: Mapping[str, Any], seconds: float) -> tuple[np.ndarray, n
     try:
         scene = Scene(env)
         track: list = []
-        fly(scene, _policy(scene, k, bool(flight["filtered"])), _start(scene, k, int(flight.get("seed", 0))),
-            seed=k, seconds=min(seconds, SECONDS), track=track)
+        start = _start(scene, k, int(flight.get("seed", 0))) + float(flight.get("start_offset_m", 0.0))
+        fly(scene, _policy(scene, k, bool(flight["filtered"])), start, seed=k, seconds=min(seconds, SECONDS),
+            track=track)
     finally:
         env.close()
     a = np.asarray(track)
