@@ -8,30 +8,18 @@ from typing import Any, Mapping
 import numpy as np
 
 from wt_inspect_env.physics.wind import MAX_WIND_SPEED
+from wt_inspect_env.task.turbine_draws import (  # noqa: F401 - the campaign's turbines, re-exported for its report
+    NREL_SCALE_RANGE,
+    NREL_SCALED_LENGTHS,
+    SIZE_RANGES,
+    TURBINE_KINDS,
+    TurbineDistribution,
+)
 
 from ...evaluation import registry
 from ...evaluation.runner import RunSpec, make_spec
 
 SCENARIO = "campaign"
-
-
-# [lo, hi] of the generated turbines' dimensions [m]: around the paper's V100 (tower 95 m, blades
-# 49 m x 4 m) down to a small 2 MW class machine.
-SIZE_RANGES: Mapping[str, tuple[float, float]] = {"tower_height": (80.0, 130.0), "blade_length": (35.0, 60.0),
-                                                  "blade_width": (2.5, 4.5)}
-
-
-# Turbine of an episode: a generated one (SIZE_RANGES, cuboid blades), the NREL 5-MW preset as
-# published, or the preset scaled geometrically; drawn with these probabilities.
-TURBINE_KINDS: Mapping[str, float] = {"generated": 0.5, "nrel-5mw": 0.15, "nrel-5mw-scaled": 0.35}
-
-
-NREL_SCALE_RANGE = (0.6, 0.95)   # 0.6: 54 m hub, 37 m blades (tips 16 m above ground); 0.95: 85 m hub
-
-
-# The preset's lengths that a scaled variant multiplies (its blade follows blade_length geometrically).
-NREL_SCALED_LENGTHS = ("tower_height", "tower_radius", "tower_top_radius", "hub_radius", "overhang",
-                       "nacelle_radius", "nacelle_length")
 
 
 WIND_DIRECTION_RANGE_DEG = (-180.0, 180.0)   # any horizontal direction, from the rotor axis (+y)
@@ -107,16 +95,6 @@ class CampaignConfig:
             object.__setattr__(self, "only", tuple(sorted(set(self.only))))
 
 
-def _nrel_turbine(scale: float) -> dict[str, Any]:
-    """TurbineSpec fields of the NREL 5-MW preset scaled by ``scale`` (1: the preset itself)."""
-    if scale == 1.0:
-        return {"preset": "nrel-5mw"}
-    from wt_inspect_env.turbine.presets import NREL_5MW_HUB_RADIUS, NREL_5MW_TIP_RADIUS, get_turbine_preset
-    preset = get_turbine_preset("nrel-5mw")
-    return {"preset": "nrel-5mw", **{k: scale * float(preset[k]) for k in NREL_SCALED_LENGTHS},
-            "blade_length": scale * (NREL_5MW_TIP_RADIUS - NREL_5MW_HUB_RADIUS)}
-
-
 def draw_episodes(cfg: CampaignConfig) -> list[dict[str, Any]]:
     """The episodes' random draws (plain data), all from the master seed: the same seed gives
     the same campaign, episode k does not depend on how many episodes follow it, and nothing
@@ -124,14 +102,10 @@ def draw_episodes(cfg: CampaignConfig) -> list[dict[str, Any]]:
     scale are drawn whichever turbine kind is used), which keeps the prefix property."""
     from gymnasium.utils.seeding import np_random
     rng, _ = np_random(cfg.seed)
-    kinds = list(TURBINE_KINDS)
-    cum = np.cumsum(list(TURBINE_KINDS.values()))
+    turbines = TurbineDistribution()
     out = []
     for k in range(cfg.episodes):
-        sizes = {name: float(rng.uniform(lo, hi)) for name, (lo, hi) in SIZE_RANGES.items()}
-        kind = kinds[min(int(np.searchsorted(cum, rng.uniform(0.0, cum[-1]), side="right")), len(kinds) - 1)]
-        scale = float(rng.uniform(*NREL_SCALE_RANGE))
-        azimuth = float(rng.uniform(0.0, 120.0))
+        t = turbines.draw(rng)
         wind = float(rng.uniform(0.0, cfg.max_wind))
         direction_deg = float(rng.uniform(*WIND_DIRECTION_RANGE_DEG))
         r = float(rng.uniform(0.0, cfg.max_offset))
@@ -139,15 +113,9 @@ def draw_episodes(cfg: CampaignConfig) -> list[dict[str, Any]]:
         v[2] = abs(v[2])
         offset = (r * v / max(float(np.linalg.norm(v)), 1e-12)).tolist()
         seed = int(rng.integers(0, 2**31 - 1))
-        if kind == "generated":
-            turbine, scale = dict(sizes), None
-        else:
-            scale = 1.0 if kind == "nrel-5mw" else scale
-            turbine = _nrel_turbine(scale)
-            sizes = {"tower_height": 90.0 * scale, "blade_length": 61.5 * scale, "blade_width": 4.652 * scale}
-        out.append({"episode": k, "seed": seed, "turbine": kind, "turbine_scale": scale, "turbine_spec": turbine,
-                    "wind": wind, "wind_direction_deg": direction_deg, "rotor_azimuth_deg": azimuth,
-                    "start_offset": offset, "start_offset_m": r, **sizes})
+        out.append({"episode": k, "seed": seed, "turbine": t.kind, "turbine_scale": t.scale, "turbine_spec": t.spec,
+                    "wind": wind, "wind_direction_deg": direction_deg, "rotor_azimuth_deg": t.rotor_azimuth_deg,
+                    "start_offset": offset, "start_offset_m": r, **t.sizes})
     return out
 
 
