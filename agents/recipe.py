@@ -85,6 +85,10 @@ class Recipe:
         curriculum is judged by what it is for (a surface stage by coverage and SM); the seeds
         report shows it beside the full-mission target of :data:`agents.seeds.TARGET`. None: that
         target only.
+    turbines: many turbines in one training run (vector backend): ``{"n_turbines": G,
+        "redraw_every": K, "distribution": {...}}`` (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`);
+        the drones fly G worlds on drawn turbines, each redrawn every K episodes of its drones.
+        None (default): every drone on the turbine of ``env``. The periodic evaluation keeps ``eval_env``'s.
     """
 
     algo: str = "ppo"
@@ -103,6 +107,7 @@ class Recipe:
     checkpoint_every_env_steps: int = 200_000
     torch_threads: int = 1
     target: Any = None
+    turbines: Any = None
 
     def __post_init__(self) -> None:
         check_choice("algorithm", self.algo, ALGOS)
@@ -157,6 +162,15 @@ class Recipe:
             _positive_int(f"recipe {name}", getattr(self, name))
         if self.target is not None:
             object.__setattr__(self, "target", check_target(self.target))
+        if self.turbines is not None:
+            from wt_inspect_env.vector.env import many_turbine_kwargs
+            many_turbine_kwargs(self.turbines)
+            if "turbine" in self.env or "turbine_mesh" in self.env:
+                raise ValueError("recipe turbines (drawn per world) and env turbine / turbine_mesh exclude each other")
+            try:
+                object.__setattr__(self, "turbines", json.loads(json.dumps(dict(self.turbines))))
+            except TypeError:
+                raise ValueError(f"recipe turbines must be plain JSON data, got {self.turbines!r}") from None
 
     @property
     def spec(self) -> AgentSpec:

@@ -93,27 +93,34 @@ BACKENDS: tuple[str, ...] = ("vector", "subprocess", "dummy")
 def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs: int,
                  backend: str = "vector", shaping: ShapingConfig | None = None,
                  variants: Sequence[Mapping[str, Any]] = (), weights: Sequence[float] | None = None,
-                 seed: int = 0):
+                 seed: int = 0, turbines: Mapping[str, Any] | None = None):
     """``n_envs`` agent envs as one stable-baselines3 VecEnv.
 
     ``backend``: ``vector`` (default) - all drones in this process, in the native batched vector
     env (:mod:`agents.vec_env`), with episode statistics from SB3's ``VecMonitor``;
     ``subprocess`` - one single env per subprocess (SB3's ``SubprocVecEnv``); ``dummy`` - single
-    envs stepped in turn in this process (SB3's ``DummyVecEnv``).
+    envs stepped in turn in this process (SB3's ``DummyVecEnv``). ``turbines``: many-turbine
+    options of the vector backend (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`; the
+    drones fly on turbines drawn per world instead of the one of ``options``).
     """
     check_choice("backend", backend, BACKENDS)
+    if turbines is not None and backend != "vector":
+        raise ValueError(f"turbines (many turbines per run) needs backend='vector', got backend={backend!r}")
     from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecMonitor
     if backend == "vector":
         from .vec_env import make_inspection_vec_env
-        return VecMonitor(make_inspection_vec_env(task, options, spec, n_envs, shaping, variants, weights, seed))
+        return VecMonitor(make_inspection_vec_env(task, options, spec, n_envs, shaping, variants, weights, seed,
+                                                  turbines=turbines))
     fns = [_env_factory(task, options, spec, shaping, variants, weights) for _ in range(n_envs)]
     return SubprocVecEnv(fns, start_method="forkserver") if backend == "subprocess" else DummyVecEnv(fns)
 
 
 def recipe_vec_env(rec: Recipe, task: str, n_envs: int, *, backend: str = "vector", seed: int = 0):
-    """:func:`make_vec_env` with a recipe's env options, agent spec, shaping and env variants."""
+    """:func:`make_vec_env` with a recipe's env options, agent spec, shaping, env variants and
+    many-turbine options."""
     return make_vec_env(task, rec.env, rec.spec, n_envs, backend=backend, shaping=rec.shaping,
-                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed)
+                        variants=rec.env_variants, weights=rec.env_variant_weights, seed=seed,
+                        turbines=rec.turbines)
 
 
 def recipe_vecnormalize(venv, rec: Recipe):

@@ -75,8 +75,10 @@ def _vec_env_base():
 
 def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs: int,
                             shaping: ShapingConfig | None = None, variants: Sequence[Mapping[str, Any]] = (),
-                            weights: Sequence[float] | None = None, seed: int = 0):
-    """An :class:`InspectionVecEnv` (class built on first use so that SB3 stays optional)."""
+                            weights: Sequence[float] | None = None, seed: int = 0,
+                            turbines: Mapping[str, Any] | None = None):
+    """An :class:`InspectionVecEnv` (class built on first use so that SB3 stays optional).
+    ``turbines``: many-turbine options (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`)."""
     VecEnv = _vec_env_base()
 
     class InspectionVecEnv(VecEnv):
@@ -86,6 +88,7 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
             from wt_inspect_env.task.env_config import TASKS
             from wt_inspect_env.util.validation import check_choice
             from wt_inspect_env.vector import WindTurbineInspectionVectorEnv
+            from wt_inspect_env.vector.env import many_turbine_kwargs
 
             check_choice("task", task, TASKS)
             opts = dict(options)
@@ -99,6 +102,8 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                 extra = {"wind_variants": [v.get("wind", opts.get("wind", "gust")) for v in variants],
                          "wind_variant_weights": None if weights is None else list(weights)}
                 opts.pop("wind", None)
+            if turbines is not None:
+                extra.update(many_turbine_kwargs(turbines))
             self.venv = WindTurbineInspectionVectorEnv(num_envs=n_envs, task=task, **opts, **extra)
             u = self.venv
             self.iface = BatchedAgentInterface(spec, n_envs, standoff=u.config.standoff, dt=u.dt, scaling=u.scaling)
@@ -164,6 +169,8 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                                     "mission_complete": bool(info["final_info"]["mission_complete"][i]),
                                     "time": float(info["final_info"]["episode_steps"][i] * self.venv.dt),
                                     "variant": int(info["final_info"]["variant"][i])}
+                        if "turbine" in info["final_info"]:
+                            infos[i]["turbine"] = {k: v[i] for k, v in info["final_info"]["turbine"].items()}
                     self.iface.reset(fin)
                     self.iface.update(fin, {k: v[fin] for k, v in obs.items()})
                 if len(cont):

@@ -20,6 +20,22 @@ the single env draws it (its plant, noise and latency; the draw of an ended epis
 ``reset(options=...)`` takes the single env's options for that episode of every drone; image
 observations are single-env only and refused (PyBullet renders one scene for all drones).
 
+Many turbines (``turbines=``, a :class:`~wt_inspect_env.task.turbine_draws.TurbineDistribution` or a
+dict of its fields, with ``n_turbines=G`` dividing N): the env holds G worlds of N/G drones each
+(drones ``g*N/G ...`` fly world ``g``), each on a turbine and rotor azimuth drawn from the world's
+own stream, so an agent trained on it does not see one turbine only. The stream of world ``g`` is
+seeded from the seed of its first drone (``reset(seed=s)``: ``s + g*N/G``), so the same seed
+gives the same turbines, and drone ``i`` is the single env made with ``turbine=`` its world's draw
+and seeded like drone ``i``. A world redraws its turbine once its drones have ended
+``redraw_every * N/G`` episodes since its last draw: its drones still flying are truncated at that
+step (``truncated``, ``info["termination"] == "redraw"``, the final observation and info as for
+any ended episode - a time-limit-like cut that a learner bootstraps from), the world is planned
+anew on the next draw and all its drones reset. ``info["turbine"]`` (a dict of per-drone arrays:
+kind, scale, sizes, rotor azimuth) and ``info["turbine_draw"]`` (the world's draw number) tell the
+turbine of each returned observation's episode; ``info["final_info"]["turbine"]`` that of an
+ended one. The worlds are planned at the first ``reset`` (and again at a seeded reset whose draws
+differ); ``worlds`` holds them, ``world``, ``sim`` and ``mission`` are None.
+
 Autoreset: ``AutoresetMode.SAME_STEP`` (in ``metadata["autoreset_mode"]``) - a drone whose
 episode ends is reset inside the same ``step``; the returned observation is the first of its new
 episode, and the last one is in ``info["final_obs"][i]`` with the ended episode's info (including
@@ -30,7 +46,7 @@ running episode are :meth:`metrics` ``(i)``.
 """
 from __future__ import annotations
 
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -40,16 +56,60 @@ from gymnasium.vector.utils import batch_space
 
 from ..env import observation_space
 from ..physics.wind import make_wind
+from ..scene.camera import GimbalCamera
 from ..task.env_config import EnvConfig
 from ..task.hooks import TaskHooks
-from ..util.validation import check_actions
-from ..world.world import InspectionWorld
+from ..task.spaces import ActionScaling
+from ..task.turbine_draws import TurbineDistribution, TurbineDraw
+from ..util.validation import check_actions, check_unknown_options
+from ..world.world import InspectionWorld, StepResult
+
+REDRAW = "redraw"             # termination name of a drone cut short by its world's new turbine
+_TURBINE_STREAM = 0x7B1E      # mixed into a world's seed: its turbines' stream, apart from its drones'
 
 
 def _check_num_envs(num_envs: Any) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
     return int(num_envs)
+
+
+def _check_count(name: str, value: Any) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+#: the keys of a recipe's (or any plain-data caller's) many-turbine options
+MANY_TURBINE_KEYS: tuple[str, ...] = ("distribution", "n_turbines", "redraw_every")
+
+
+def many_turbine_kwargs(options: Any) -> dict[str, Any]:
+    """The vector env's keyword options of plain-data many-turbine options (a training recipe's
+    ``turbines`` entry): ``{"distribution": {...TurbineDistribution fields}, "n_turbines": G,
+    "redraw_every": K}``, all optional but ``n_turbines``. Validated here, so a recipe fails when it
+    is read; that ``n_turbines`` divides the number of drones is checked when the env is built."""
+    if not isinstance(options, Mapping):
+        raise ValueError(f"turbines must be a dict with keys {', '.join(MANY_TURBINE_KEYS)}, got {options!r}")
+    check_unknown_options("turbines", options.keys(), MANY_TURBINE_KEYS)
+    if "n_turbines" not in options:
+        raise ValueError("turbines.n_turbines is required (the number of worlds, dividing the number of drones)")
+    return {"turbines": TurbineDistribution.coerce(options.get("distribution", {})),
+            "n_turbines": _check_count("turbines.n_turbines", options["n_turbines"]),
+            "redraw_every": _check_count("turbines.redraw_every", options.get("redraw_every", 1))}
+
+
+def _concat(results: list[StepResult]) -> StepResult:
+    """One step of several worlds as one of their drones in order (a single world's as it is)."""
+    if len(results) == 1:
+        return results[0]
+    cat = np.concatenate
+    return StepResult(observations={k: cat([r.observations[k] for r in results]) for k in results[0].observations},
+                      reward=cat([r.reward for r in results]),
+                      terms={k: cat([r.terms[k] for r in results]) for k in results[0].terms},
+                      code=cat([r.code for r in results]), terminated=cat([r.terminated for r in results]),
+                      truncated=cat([r.truncated for r in results]), complete=cat([r.complete for r in results]),
+                      finite=cat([r.finite for r in results]))
 
 
 class WindTurbineInspectionVectorEnv(VectorEnv):
@@ -59,8 +119,19 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     def __init__(self, num_envs: int = 1, render_mode: str | None = None, winds: Sequence[Any] | None = None,
                  wind_variants: Sequence[Any] | None = None, wind_variant_weights: Sequence[float] | None = None,
-                 hooks: TaskHooks | None = None, **options: Any) -> None:
+                 hooks: TaskHooks | None = None, turbines: TurbineDistribution | dict | None = None,
+                 n_turbines: int = 1, redraw_every: int = 1, **options: Any) -> None:
         n = self.num_envs = _check_num_envs(num_envs)
+        self.turbines = None if turbines is None else TurbineDistribution.coerce(turbines)
+        g = self.n_turbines = _check_count("n_turbines", n_turbines)
+        self.redraw_every = _check_count("redraw_every", redraw_every)
+        if n % g:
+            raise ValueError(f"n_turbines must divide num_envs={n}, got {n_turbines!r}")
+        if self.turbines is None and g != 1:
+            raise ValueError(f"n_turbines={g} needs turbines= (a TurbineDistribution or a dict of its fields)")
+        if self.turbines is not None and ("turbine" in options or "turbine_mesh" in options):
+            raise ValueError("give either turbines (drawn per world) or turbine / turbine_mesh (one), not both")
+        self.drones_per_world = n // g
         if render_mode is not None:
             raise ValueError(f"render_mode {render_mode!r} is not supported by the vector env (render a "
                              "single WindTurbineInspectionEnv instead)")
@@ -114,11 +185,27 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self._variant_rngs: list[np.random.Generator | None] = [None] * n
         self.variant = np.zeros(n, dtype=np.int64)
         self._fixed_winds = list(self.winds)
-        self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
-        self.winds = world.winds
-        self.sim, self.mission, self.params, self.scaling = world.sim, world.mission, world.params, world.scaling
-        self.dt, self.camera = world.dt, world.camera
-        self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
+        if hooks is not None and not isinstance(hooks, TaskHooks):
+            raise ValueError(f"hooks must be a TaskHooks (or a subclass), got {type(hooks).__name__}")
+        self._hooks = hooks if hooks is not None else TaskHooks()
+        self._options = dict(options)
+        self.worlds: list[InspectionWorld] = []
+        self.draws: list[TurbineDraw | None] = [None] * g        # each world's turbine (many turbines)
+        self.draw_count = np.zeros(g, dtype=np.int64)            # ... its draws since the seeded reset
+        self._ended = np.zeros(g, dtype=np.int64)                # ... episodes ended since its draw
+        self._turbine_rngs: list[np.random.Generator | None] = [None] * g
+        if self.turbines is None:
+            self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
+            self.worlds, self._hooks = [world], world.hooks
+            self.winds = world.winds
+            self.sim, self.mission, self.params, self.scaling = world.sim, world.mission, world.params, world.scaling
+            self.dt, self.camera = world.dt, world.camera
+            self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
+        else:   # the worlds are planned at the first reset, on the reset seed's turbines
+            self.world = self.sim = self.mission = None
+            self.params, self.scaling = cfg.drone, ActionScaling.from_params(cfg.drone)
+            self.dt, self.camera = 1.0 / cfg.ctrl_hz, GimbalCamera(cfg.camera)
+            self.n_triangles = self.time_limit = None
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.single_observation_space = observation_space(structure=self.config.structure_observation)
         self.action_space = batch_space(self.single_action_space, n)
@@ -129,25 +216,26 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
 
     @property
     def hooks(self) -> TaskHooks:
-        """The task's observation, reward and termination rules (shared with the world)."""
-        return self.world.hooks
+        """The task's observation, reward and termination rules (shared with the worlds)."""
+        return self._hooks
 
     @property
     def randomization(self) -> list:
         """Each drone's domain-randomisation draw of its running episode (None without)."""
-        return self.world.randomization
+        return [r for w in self.worlds for r in w.randomization]
 
     @property
     def steps(self) -> np.ndarray:
         """Control steps of each drone's running episode."""
-        return self.world.steps
+        return self._cat([w.steps for w in self.worlds])
 
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: int | Sequence[int | None] | None = None, options: dict | None = None):
         """Reset every drone. ``options`` (the single env's ``reset`` options: wind, start_offset,
         start_noise, start_progress, randomization) hold for this episode of every drone; drones
-        reset automatically afterwards start from the constructor's configuration again."""
-        w, n = self.world, self.num_envs
+        reset automatically afterwards start from the constructor's configuration again. With many
+        turbines a seeded reset goes back to the first turbine of each world's seeded stream."""
+        n, m = self.num_envs, self.drones_per_world
         ep = self.config.for_episode(options)
         if seed is None:
             seeds: list[int | None] = ([self.config.seed + i for i in range(n)]
@@ -162,64 +250,172 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             if s is not None and (isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0):
                 raise ValueError(f"seed[{i}] must be a non-negative integer or None, got {s!r}")
         self._seeded = True
+        if self.turbines is not None:
+            self._draw_turbines(seeds)
         for i, s in enumerate(seeds):
             if s is not None:
-                w.rngs[i], _ = seeding.np_random(int(s))
+                w, j = self._locate(i)
+                w.rngs[j], _ = seeding.np_random(int(s))
                 self._variant_rngs[i] = np.random.default_rng([int(s), 0x5A17])
-        for i in range(n):
-            w.episode[i] = ep
-            if options and "wind" in options:
-                w.set_wind(i, w.episode_wind(i, ep.wind))
-            else:
-                self._draw_wind(i)
-        w.reset(np.arange(n))
+        for g, w in enumerate(self.worlds):
+            w_ep = ep if w.config is self.config else w.config.for_episode(options)
+            for j in range(m):
+                w.episode[j] = w_ep
+                if options and "wind" in options:
+                    w.set_wind(j, w.episode_wind(j, w_ep.wind))
+                    self._sync_wind(g * m + j)
+                else:
+                    self._draw_wind(g * m + j)
+            w.reset(np.arange(m))
         self._started = True
-        return w.observations(np.zeros(n, dtype=bool)), self._infos(None)
+        obs = self._cat_obs([w.observations(np.zeros(m, dtype=bool)) for w in self.worlds])
+        infos = self._infos(None)
+        if self.turbines is not None:
+            self._add_turbine_infos(infos)
+        return obs, infos
 
     def step(self, actions):
-        """Hold each drone's action for one control step; drones whose episode ended are reset (autoreset)."""
+        """Hold each drone's action for one control step; drones whose episode ended are reset
+        (autoreset), and with many turbines a world due for a new turbine is rebuilt."""
         if not self._started:
             raise RuntimeError("call reset() before step()")
-        w, n = self.world, self.num_envs
+        n, m = self.num_envs, self.drones_per_world
         a = check_actions(actions, (n, 4), "actions")   # the single env's validation, batched
-        r = w.step(a)
+        r = _concat([w.step(a[g * m:(g + 1) * m]) for g, w in enumerate(self.worlds)])
         obs = r.observations
+        ended_now = r.terminated | r.truncated
+        redraw = self._due_for_redraw(ended_now)
+        cut = np.zeros(n, dtype=bool)
+        for g in redraw:
+            cut[g * m:(g + 1) * m] = ~ended_now[g * m:(g + 1) * m]
+        if cut.any():
+            r.truncated[cut] = True
         infos = self._infos(r)
+        if cut.any():
+            infos["termination"][cut] = REDRAW
         ended = np.flatnonzero(r.terminated | r.truncated)
         if len(ended):
-            names = w.hooks.termination_names
+            names = self.hooks.termination_names
             for i in ended.tolist():
+                w, j = self._locate(i)
                 final_obs = {k: v[i].copy() for k, v in obs.items()}
-                final_info = {"metrics": self.metrics(i), "termination": names[r.code[i]],
-                              "mission_complete": bool(r.complete[i]), "coverage": float(w.coverage[i]),
-                              "episode_steps": int(w.steps[i]), "variant": int(self.variant[i]),
-                              "stalls": int(w.reference.stalls[i]), "skipped_m": float(w.reference.skipped[i])}
-                if w.randomization[i] is not None:
-                    final_info["randomization"] = w.randomization[i].to_info()
+                final_info = {"metrics": self.metrics(i), "termination": REDRAW if cut[i] else names[r.code[i]],
+                              "mission_complete": bool(r.complete[i]), "coverage": float(w.coverage[j]),
+                              "episode_steps": int(w.steps[j]), "variant": int(self.variant[i]),
+                              "stalls": int(w.reference.stalls[j]), "skipped_m": float(w.reference.skipped[j])}
+                if w.randomization[j] is not None:
+                    final_info["randomization"] = w.randomization[j].to_info()
+                if self.turbines is not None:
+                    final_info["turbine"] = self.draws[i // m].to_info()
                 infos = self._add_info(infos, {"final_obs": final_obs, "final_info": final_info}, i)
-                w.episode[i] = self.config
+                w.episode[j] = w.config
                 self._draw_wind(i)
-            w.reset(ended)
-            fresh = w.observations(np.zeros(n, dtype=bool), noisy=ended.tolist())
-            for k in obs:
-                obs[k][ended] = fresh[k][ended]
+            for g in redraw:
+                self._set_world(g, self.turbines.draw(self._turbine_rngs[g]))
+                self.draw_count[g] += 1
+            for g, w in enumerate(self.worlds):
+                rows = np.flatnonzero(r.terminated[g * m:(g + 1) * m] | r.truncated[g * m:(g + 1) * m])
+                if not len(rows):
+                    continue
+                w.reset(rows)
+                fresh = w.observations(np.zeros(m, dtype=bool), noisy=rows.tolist())
+                for k in obs:
+                    obs[k][g * m + rows] = fresh[k][rows]
+        if self.turbines is not None:
+            self._add_turbine_infos(infos)
         return obs, r.reward, r.terminated, r.truncated, infos
 
     def close_extras(self, **kwargs: Any) -> None:
-        """Close the world's simulator."""
-        self.world.close()
+        """Close the worlds' simulators."""
+        for w in self.worlds:
+            w.close()
 
     # ------------------------------------------------------------------ queries
     def metrics(self, i: int) -> dict[str, float]:
         """The :class:`~wt_inspect_env.task.metrics.InspectionMetrics` (as a dict) of drone ``i``'s episode so far."""
-        return self.world.metrics(int(i)).to_dict()
+        w, j = self._locate(int(i))
+        return w.metrics(j).to_dict()
 
     @property
     def coverage(self) -> np.ndarray:
         """Each drone's coverage of its running episode."""
-        return self.world.coverage
+        return self._cat([w.coverage for w in self.worlds])
 
     # ------------------------------------------------------------------ internals
+    def _locate(self, i: int) -> tuple[InspectionWorld, int]:
+        """The world drone ``i`` flies in and its index there."""
+        g, j = divmod(i, self.drones_per_world)
+        return self.worlds[g], j
+
+    @staticmethod
+    def _cat(arrays: list[np.ndarray]) -> np.ndarray:
+        """Per-world arrays as one over the drones (a single world's as it is)."""
+        return arrays[0] if len(arrays) == 1 else np.concatenate(arrays)
+
+    def _cat_obs(self, parts: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        return parts[0] if len(parts) == 1 else {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+    def _draw_turbines(self, seeds: Sequence[int | None]) -> None:
+        """At a reset: world ``g``'s turbine stream reseeded from its first drone's seed (if any),
+        its first turbine drawn and the world planned on it unless it is already (an unseeded reset
+        keeps the worlds and their counts; the very first one draws from fresh entropy)."""
+        m = self.drones_per_world
+        for g in range(self.n_turbines):
+            s = seeds[g * m]
+            if s is None and self.draws[g] is not None:
+                continue
+            self._turbine_rngs[g] = (np.random.default_rng([int(s), _TURBINE_STREAM]) if s is not None
+                                     else np.random.default_rng())
+            draw = self.turbines.draw(self._turbine_rngs[g])
+            self.draw_count[g], self._ended[g] = 0, 0
+            if draw != self.draws[g]:
+                self._set_world(g, draw)
+
+    def _set_world(self, g: int, draw: TurbineDraw) -> None:
+        """World ``g`` planned on ``draw``; its drones keep their random streams and wind fields
+        (they are reset by the caller)."""
+        m = self.drones_per_world
+        cfg = EnvConfig.from_kwargs(**self._options, turbine=draw.turbine_option())
+        old = self.worlds[g] if g < len(self.worlds) else None
+        winds = list(old.winds) if old is not None else self.winds[g * m:(g + 1) * m]
+        if old is not None:
+            old.close()
+        w = InspectionWorld(cfg, m, winds=winds, hooks=self._hooks)
+        if old is not None:
+            w.rngs = list(old.rngs)
+            self.worlds[g] = w
+        else:
+            self.worlds.append(w)
+        self.draws[g] = draw
+        self._ended[g] = 0
+
+    def _due_for_redraw(self, ended: np.ndarray) -> list[int]:
+        """Count the episodes each world ended this step; the worlds due for a new turbine."""
+        if self.turbines is None:
+            return []
+        m, due = self.drones_per_world, []
+        for g in range(self.n_turbines):
+            self._ended[g] += int(ended[g * m:(g + 1) * m].sum())
+            if self._ended[g] >= self.redraw_every * m:
+                due.append(g)
+        return due
+
+    def _add_turbine_infos(self, infos: dict[str, Any]) -> None:
+        """Each drone's turbine (of the episode its returned observation belongs to)."""
+        m = self.drones_per_world
+        per = [d.to_info() for d in self.draws]
+        infos["turbine"] = {k: np.repeat(np.array([p[k] for p in per], dtype=object if k == "kind" else float), m)
+                            for k in per[0]}
+        infos["_turbine"] = {k: np.ones(self.num_envs, dtype=bool) for k in per[0]}
+        infos["turbine_draw"] = np.repeat(self.draw_count, m)
+        infos["_turbine_draw"] = np.ones(self.num_envs, dtype=bool)
+
+    def _sync_wind(self, i: int) -> None:
+        """Keep :attr:`winds` (a list of its own with many worlds) on drone ``i``'s field."""
+        w, j = self._locate(i)
+        if self.winds is not w.winds:
+            self.winds[i] = w.winds[j]
+
     def _draw_wind(self, i: int) -> None:
         """Drone ``i``'s field for its next episode: its own of the constructor's wind, or one of the
         wind variants drawn from its variant stream."""
@@ -230,20 +426,25 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             field = self._variants[self.variant[i]][i]
         else:
             field = self._fixed_winds[i]
-        if self.world.winds[i] is not field:
-            self.world.set_wind(i, field)
+        w, j = self._locate(i)
+        if w.winds[j] is not field:
+            w.set_wind(j, field)
+        self._sync_wind(i)
 
     def _infos(self, r) -> dict[str, Any]:
-        w, n = self.world, self.num_envs
-        s = w.reference.sample
+        ws, n = self.worlds, self.num_envs
+        cat = self._cat
+        ss = [w.reference.sample for w in ws]
         infos: dict[str, Any] = {
-            "coverage": w.coverage, "phase": s.phase.copy(), "time": w.sim.time,
-            "waiting_for_phase_change": s.waiting_for_phase_change.copy(),
-            "ideal_position": s.ideal_position.copy(), "wind": w.sim.last_wind.copy(),
-            "approaching": w.reference.approaching,
+            "coverage": self.coverage, "phase": cat([s.phase for s in ss]).copy(),
+            "time": cat([w.sim.time for w in ws]),
+            "waiting_for_phase_change": cat([s.waiting_for_phase_change for s in ss]).copy(),
+            "ideal_position": cat([s.ideal_position for s in ss]).copy(),
+            "wind": cat([w.sim.last_wind for w in ws]).copy(),
+            "approaching": cat([w.reference.approaching for w in ws]),
         }
         if r is not None:
-            names = w.hooks.termination_names
+            names = self.hooks.termination_names
             infos["termination"] = np.array([names[c] for c in r.code.tolist()], dtype=object)
             infos["mission_complete"] = r.complete.copy()
             infos["reward_terms"] = dict(r.terms)
