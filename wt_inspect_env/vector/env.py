@@ -10,10 +10,10 @@ observations, rewards, terminations, coverage and metrics, bit for bit (tested f
 across autoresets and the rotor turn). ``hooks=`` (a :class:`~wt_inspect_env.task.hooks.TaskHooks`)
 changes the task for both.
 
-What is shared: the planned mission (one turbine, one task), the PyBullet client
+What is shared (without ``turbines=``): the planned mission (one turbine, one task), the PyBullet client
 (:class:`~wt_inspect_env.world.batched_sim.BatchedQuadrotorSim`) and the camera-ray batch. Per-drone wind
-is supported (``winds=[spec_0, ..., spec_N-1]``); per-drone turbines or tasks are not (one mission
-is planned per vector env - make one vector env per turbine) and are refused with a clear error.
+is supported (``winds=[spec_0, ..., spec_N-1]``); per-drone tasks or options are not and are
+refused with a clear error; turbines vary per group of drones with ``turbines=`` (below).
 Domain randomisation (``randomization=...``) is drawn per drone from drone ``i``'s stream exactly as
 the single env draws it (its plant, noise and latency; the draw of an ended episode is in
 ``info["final_info"]["randomization"]``, the running ones in :attr:`randomization`).
