@@ -10,7 +10,7 @@ def test_a_recipe_keeps_its_turbines_entry_through_json():
     t = {"n_turbines": 4, "redraw_every": 2, "distribution": {"kinds": {"generated": 1.0}, "tower_height": [90, 100]}}
     rec = Recipe.from_dict({"turbines": t})
     assert rec.turbines == t and Recipe.from_dict(rec.to_dict()).turbines == t
-    assert Recipe().turbines is None
+    assert Recipe().turbines is None and "turbines" not in Recipe().to_dict()   # older recipes' dicts unchanged
 
 
 @pytest.mark.parametrize("turbines, match", [

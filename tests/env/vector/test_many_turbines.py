@@ -65,9 +65,11 @@ def test_drone_i_is_the_single_env_on_its_worlds_turbine():
 
 
 def test_world_g_draws_from_the_stream_of_its_first_drones_seed():
-    venv = _venv(4, 2, turbines={})
+    env = gym.make_vec(ENV, num_envs=4, vectorization_mode="vector_entry_point", turbines={}, n_turbines=2)
+    venv = env.unwrapped
     try:
-        venv.reset(seed=7)
+        obs, _ = env.reset(seed=7)
+        assert env.observation_space.contains(obs) and len(venv.worlds) == 2
         for g in range(2):
             expect = TurbineDistribution().draw(np.random.default_rng([7 + 2 * g, 0x7B1E]))
             assert venv.draws[g] == expect
