@@ -86,7 +86,7 @@ class Recipe:
         report shows it beside the full-mission target of :data:`agents.seeds.TARGET`. None: that
         target only.
     turbines: many turbines in one training run (vector backend): ``{"n_turbines": G,
-        "redraw_every": K, "distribution": {...}}`` (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`);
+        "redraw_every": K, "distribution": {...}}`` (:func:`~wt_inspect_env.vector.turbines.many_turbine_kwargs`);
         the drones fly G worlds on drawn turbines, each redrawn every K episodes of its drones.
         None (default): every drone on the turbine of ``env``. The periodic evaluation keeps ``eval_env``'s.
     """
@@ -163,7 +163,7 @@ class Recipe:
         if self.target is not None:
             object.__setattr__(self, "target", check_target(self.target))
         if self.turbines is not None:
-            from wt_inspect_env.vector.env import many_turbine_kwargs
+            from wt_inspect_env.vector.turbines import many_turbine_kwargs
             many_turbine_kwargs(self.turbines)
             if "turbine" in self.env or "turbine_mesh" in self.env:
                 raise ValueError("recipe turbines (drawn per world) and env turbine / turbine_mesh exclude each other")

@@ -100,7 +100,7 @@ def make_vec_env(task: str, options: Mapping[str, Any], spec: AgentSpec, n_envs:
     env (:mod:`agents.vec_env`), with episode statistics from SB3's ``VecMonitor``;
     ``subprocess`` - one single env per subprocess (SB3's ``SubprocVecEnv``); ``dummy`` - single
     envs stepped in turn in this process (SB3's ``DummyVecEnv``). ``turbines``: many-turbine
-    options of the vector backend (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`; the
+    options of the vector backend (:func:`~wt_inspect_env.vector.turbines.many_turbine_kwargs`; the
     drones fly on turbines drawn per world instead of the one of ``options``).
     """
     check_choice("backend", backend, BACKENDS)

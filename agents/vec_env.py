@@ -78,7 +78,7 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                             weights: Sequence[float] | None = None, seed: int = 0,
                             turbines: Mapping[str, Any] | None = None):
     """An :class:`InspectionVecEnv` (class built on first use so that SB3 stays optional).
-    ``turbines``: many-turbine options (:func:`~wt_inspect_env.vector.env.many_turbine_kwargs`)."""
+    ``turbines``: many-turbine options (:func:`~wt_inspect_env.vector.turbines.many_turbine_kwargs`)."""
     VecEnv = _vec_env_base()
 
     class InspectionVecEnv(VecEnv):
@@ -88,7 +88,7 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
             from wt_inspect_env.task.env_config import TASKS
             from wt_inspect_env.util.validation import check_choice
             from wt_inspect_env.vector import WindTurbineInspectionVectorEnv
-            from wt_inspect_env.vector.env import many_turbine_kwargs
+            from wt_inspect_env.vector.turbines import many_turbine_kwargs
 
             check_choice("task", task, TASKS)
             opts = dict(options)

@@ -46,7 +46,7 @@ running episode are :meth:`metrics` ``(i)``.
 """
 from __future__ import annotations
 
-from typing import Any, Mapping, Sequence
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -61,42 +61,15 @@ from ..task.env_config import EnvConfig
 from ..task.hooks import TaskHooks
 from ..task.spaces import ActionScaling
 from ..task.turbine_draws import TurbineDistribution, TurbineDraw
-from ..util.validation import check_actions, check_unknown_options
+from ..util.validation import check_actions
 from ..world.world import InspectionWorld, StepResult
-
-REDRAW = "redraw"             # termination name of a drone cut short by its world's new turbine
-_TURBINE_STREAM = 0x7B1E      # mixed into a world's seed: its turbines' stream, apart from its drones'
+from .turbines import REDRAW, check_count, turbine_stream
 
 
 def _check_num_envs(num_envs: Any) -> int:
     if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
         raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
     return int(num_envs)
-
-
-def _check_count(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
-#: the keys of a recipe's (or any plain-data caller's) many-turbine options
-MANY_TURBINE_KEYS: tuple[str, ...] = ("distribution", "n_turbines", "redraw_every")
-
-
-def many_turbine_kwargs(options: Any) -> dict[str, Any]:
-    """The vector env's keyword options of plain-data many-turbine options (a training recipe's
-    ``turbines`` entry): ``{"distribution": {...TurbineDistribution fields}, "n_turbines": G,
-    "redraw_every": K}``, all optional but ``n_turbines``. Validated here, so a recipe fails when it
-    is read; that ``n_turbines`` divides the number of drones is checked when the env is built."""
-    if not isinstance(options, Mapping):
-        raise ValueError(f"turbines must be a dict with keys {', '.join(MANY_TURBINE_KEYS)}, got {options!r}")
-    check_unknown_options("turbines", options.keys(), MANY_TURBINE_KEYS)
-    if "n_turbines" not in options:
-        raise ValueError("turbines.n_turbines is required (the number of worlds, dividing the number of drones)")
-    return {"turbines": TurbineDistribution.coerce(options.get("distribution", {})),
-            "n_turbines": _check_count("turbines.n_turbines", options["n_turbines"]),
-            "redraw_every": _check_count("turbines.redraw_every", options.get("redraw_every", 1))}
 
 
 def _concat(results: list[StepResult]) -> StepResult:
@@ -123,8 +96,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                  n_turbines: int = 1, redraw_every: int = 1, **options: Any) -> None:
         n = self.num_envs = _check_num_envs(num_envs)
         self.turbines = None if turbines is None else TurbineDistribution.coerce(turbines)
-        g = self.n_turbines = _check_count("n_turbines", n_turbines)
-        self.redraw_every = _check_count("redraw_every", redraw_every)
+        g = self.n_turbines = check_count("n_turbines", n_turbines)
+        self.redraw_every = check_count("redraw_every", redraw_every)
         if n % g:
             raise ValueError(f"n_turbines must divide num_envs={n}, got {n_turbines!r}")
         if self.turbines is None and g != 1:
@@ -364,8 +337,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             s = seeds[g * m]
             if s is None and self.draws[g] is not None:
                 continue
-            self._turbine_rngs[g] = (np.random.default_rng([int(s), _TURBINE_STREAM]) if s is not None
-                                     else np.random.default_rng())
+            self._turbine_rngs[g] = turbine_stream(s)
             draw = self.turbines.draw(self._turbine_rngs[g])
             self.draw_count[g], self._ended[g] = 0, 0
             if draw != self.draws[g]:

@@ -9,7 +9,7 @@ import pytest
 import wt_inspect_env  # noqa: F401 - registers the ids
 from wt_inspect_env.task.turbine_draws import TurbineDistribution
 from wt_inspect_env.vector import WindTurbineInspectionVectorEnv
-from wt_inspect_env.vector.env import REDRAW, many_turbine_kwargs
+from wt_inspect_env.vector.turbines import REDRAW, many_turbine_kwargs, turbine_stream
 
 ENV = "WindTurbineInspection-v0"
 # generated turbines plan fastest; the kinds are the distribution's business, tested below
@@ -71,7 +71,7 @@ def test_world_g_draws_from_the_stream_of_its_first_drones_seed():
         obs, _ = env.reset(seed=7)
         assert env.observation_space.contains(obs) and len(venv.worlds) == 2
         for g in range(2):
-            expect = TurbineDistribution().draw(np.random.default_rng([7 + 2 * g, 0x7B1E]))
+            expect = TurbineDistribution().draw(turbine_stream(7 + 2 * g))
             assert venv.draws[g] == expect
             assert venv.worlds[g].config.turbine.rotor_azimuth_deg == expect.rotor_azimuth_deg
     finally:
