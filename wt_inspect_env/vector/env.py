@@ -27,7 +27,11 @@ own stream, so an agent trained on it does not see one turbine only. The stream 
 seeded from the seed of its first drone (``reset(seed=s)``: ``s + g*N/G``), so the same seed
 gives the same turbines, and drone ``i`` is the single env made with ``turbine=`` its world's draw
 and seeded like drone ``i``. A world redraws its turbine once its drones have ended
-``redraw_every * N/G`` episodes since its last draw: its drones still flying are truncated at that
+``redraw_every * N/G`` episodes since its last draw - or, with ``redraw_after_s=T``, once it has flown
+T simulated seconds since its last draw (world ``g``'s first draw lasts ``(g + 1) T / G``, so that the
+worlds are planned at different steps). Training wants the latter: early in learning episodes end
+within a second or two, and a count of episodes would replan every world every few seconds of
+flight. At a redraw the world's drones still flying are truncated at that
 step (``truncated``, ``info["termination"] == "redraw"``, the final observation and info as for
 any ended episode - a time-limit-like cut that a learner bootstraps from), the world is planned
 anew on the next draw and all its drones reset. ``info["turbine"]`` (a dict of per-drone arrays:
@@ -61,7 +65,7 @@ from ..task.env_config import EnvConfig
 from ..task.hooks import TaskHooks
 from ..task.spaces import ActionScaling
 from ..task.turbine_draws import TurbineDistribution, TurbineDraw
-from ..util.validation import check_actions
+from ..util.validation import check_actions, check_positive
 from ..world.world import InspectionWorld, StepResult
 from .turbines import REDRAW, check_count, turbine_stream
 
@@ -93,11 +97,18 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
     def __init__(self, num_envs: int = 1, render_mode: str | None = None, winds: Sequence[Any] | None = None,
                  wind_variants: Sequence[Any] | None = None, wind_variant_weights: Sequence[float] | None = None,
                  hooks: TaskHooks | None = None, turbines: TurbineDistribution | dict | None = None,
-                 n_turbines: int = 1, redraw_every: int = 1, **options: Any) -> None:
+                 n_turbines: int = 1, redraw_every: int = 1, redraw_after_s: float | None = None,
+                 **options: Any) -> None:
         n = self.num_envs = _check_num_envs(num_envs)
         self.turbines = None if turbines is None else TurbineDistribution.coerce(turbines)
         g = self.n_turbines = check_count("n_turbines", n_turbines)
         self.redraw_every = check_count("redraw_every", redraw_every)
+        self.redraw_after_s = None if redraw_after_s is None else check_positive("redraw_after_s", redraw_after_s)
+        if self.redraw_after_s is not None and self.redraw_every != 1:
+            raise ValueError(f"give either redraw_every (episodes, got {redraw_every!r}) or redraw_after_s "
+                             f"(simulated seconds, got {redraw_after_s!r}), not both")
+        if self.redraw_after_s is not None and turbines is None:
+            raise ValueError("redraw_after_s needs turbines= (a TurbineDistribution or a dict of its fields)")
         if n % g:
             raise ValueError(f"n_turbines must divide num_envs={n}, got {n_turbines!r}")
         if self.turbines is None and g != 1:
@@ -166,6 +177,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self.draws: list[TurbineDraw | None] = [None] * g        # each world's turbine (many turbines)
         self.draw_count = np.zeros(g, dtype=np.int64)            # ... its draws since the seeded reset
         self._ended = np.zeros(g, dtype=np.int64)                # ... episodes ended since its draw
+        self._flown = np.zeros(g, dtype=np.int64)                # ... control steps flown since its draw
         self._turbine_rngs: list[np.random.Generator | None] = [None] * g
         if self.turbines is None:
             self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
@@ -339,9 +351,12 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                 continue
             self._turbine_rngs[g] = turbine_stream(s)
             draw = self.turbines.draw(self._turbine_rngs[g])
-            self.draw_count[g], self._ended[g] = 0, 0
             if draw != self.draws[g]:
                 self._set_world(g, draw)
+            self.draw_count[g], self._ended[g] = 0, 0
+            # staggered: world g's first turbine lasts (g + 1) / G of redraw_after_s
+            self._flown[g] = 0 if self.redraw_after_s is None else round(
+                (1.0 - (g + 1) / self.n_turbines) * self.redraw_after_s / self.dt)
 
     def _set_world(self, g: int, draw: TurbineDraw) -> None:
         """World ``g`` planned on ``draw``; its drones keep their random streams and wind fields
@@ -360,6 +375,7 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             self.worlds.append(w)
         self.draws[g] = draw
         self._ended[g] = 0
+        self._flown[g] = 0
 
     def _due_for_redraw(self, ended: np.ndarray) -> list[int]:
         """Count the episodes each world ended this step; the worlds due for a new turbine."""
@@ -368,7 +384,11 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         m, due = self.drones_per_world, []
         for g in range(self.n_turbines):
             self._ended[g] += int(ended[g * m:(g + 1) * m].sum())
-            if self._ended[g] >= self.redraw_every * m:
+            self._flown[g] += 1
+            if self.redraw_after_s is not None:
+                if self._flown[g] * self.dt >= self.redraw_after_s - 1e-9:
+                    due.append(g)
+            elif self._ended[g] >= self.redraw_every * m:
                 due.append(g)
         return due
 

@@ -139,6 +139,27 @@ def test_a_redraw_truncates_the_flying_drones_and_changes_the_turbine():
         venv.close()
 
 
+def test_redraw_after_flown_seconds_staggers_the_worlds_and_cuts_every_flying_drone():
+    # 2 worlds, T = 0.3 s at 100 Hz: world 0's first turbine lasts T/2 (15 steps), world 1's T (30);
+    # then every 30 steps each. Hovering drones end no episode, so every redraw cuts both of a world.
+    venv = _venv(4, 2, redraw_after_s=0.3, time_limit_s=5.0)
+    try:
+        venv.reset(seed=5)
+        first = list(venv.draws)
+        act = np.tile(venv.scaling.hover_action(), (4, 1))
+        cuts = {}
+        for t in range(1, 61):
+            _, _, term, trunc, info = venv.step(act)
+            assert not term.any()
+            for i in np.flatnonzero(trunc):
+                assert info["termination"][i] == REDRAW
+                cuts.setdefault(int(i) // 2, []).append(t)
+        assert cuts == {0: [15, 15, 45, 45], 1: [30, 30, 60, 60]}
+        assert venv.draw_count.tolist() == [2, 2] and venv.draws[0] != first[0] and venv.draws[1] != first[1]
+    finally:
+        venv.close()
+
+
 def test_the_redraw_cut_reaches_sb3_as_a_time_limit_truncation():
     """The SB3 adapter reports a redraw cut as ``TimeLimit.truncated`` (PPO bootstraps from it)
     with the ended episode's turbine."""
@@ -187,6 +208,9 @@ def test_the_default_distribution_draws_every_kind_and_the_campaigns_ranges():
     ({"num_envs": 4, "turbines": {}, "n_turbines": -2}, r"n_turbines must be a positive integer, got -2"),
     ({"num_envs": 4, "turbines": {}, "redraw_every": 0}, r"redraw_every must be a positive integer, got 0"),
     ({"num_envs": 4, "n_turbines": 2}, r"n_turbines=2 needs turbines="),
+    ({"num_envs": 4, "turbines": {}, "redraw_after_s": -1.0}, r"redraw_after_s must be"),
+    ({"num_envs": 4, "turbines": {}, "redraw_after_s": 10.0, "redraw_every": 3}, r"either redraw_every .* or redraw_after_s"),
+    ({"num_envs": 4, "redraw_after_s": 10.0}, r"redraw_after_s needs turbines="),
     ({"num_envs": 2, "turbines": {"kinds": {"v236": 1.0}}}, r"turbines.kinds: unknown turbine kind or preset 'v236'"),
     ({"num_envs": 2, "turbines": {"kinds": {"generated": -1.0}}}, r"turbines.kinds\['generated'\] must be a weight"),
     ({"num_envs": 2, "turbines": {"tower_height": [90.0, 80.0]}}, r"turbines.tower_height must be \[lo, hi\]"),
@@ -207,3 +231,6 @@ def test_many_turbine_kwargs_validate_plain_data():
         many_turbine_kwargs({"redraw_every": 2})
     with pytest.raises(ValueError, match=r"turbines.redraw_every must be a positive integer, got 'x'"):
         many_turbine_kwargs({"n_turbines": 1, "redraw_every": "x"})
+    assert many_turbine_kwargs({"n_turbines": 1, "redraw_after_s": 200})["redraw_after_s"] == 200.0
+    with pytest.raises(ValueError, match=r"either redraw_every .* or redraw_after_s"):
+        many_turbine_kwargs({"n_turbines": 1, "redraw_every": 2, "redraw_after_s": 200})
