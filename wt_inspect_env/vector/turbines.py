@@ -33,8 +33,9 @@ MANY_TURBINE_KEYS: tuple[str, ...] = ("distribution", "n_turbines", "redraw_ever
 def many_turbine_kwargs(options: Any) -> dict[str, Any]:
     """The vector env's keyword options of plain-data many-turbine options (a training recipe's
     ``turbines`` entry): ``{"distribution": {...TurbineDistribution fields}, "n_turbines": G,
-    "redraw_every": K}`` or ``"redraw_after_s": T`` instead of K, all optional but ``n_turbines``. Validated here, so a recipe fails when it
-    is read; that ``n_turbines`` divides the number of drones is checked when the env is built."""
+    "redraw_every": K}`` or ``"redraw_after_s": T`` instead of K, all optional but ``n_turbines``.
+    Validated here, so a recipe fails when it is read; that ``n_turbines`` divides the number of
+    drones is checked when the env is built."""
     if not isinstance(options, Mapping):
         raise ValueError(f"turbines must be a dict with keys {', '.join(MANY_TURBINE_KEYS)}, got {options!r}")
     check_unknown_options("turbines", options.keys(), MANY_TURBINE_KEYS)
