@@ -42,7 +42,7 @@ from wt_inspect_env.task.env_config import TASKS
 from wt_inspect_env.util.atomic_io import write_text_atomic
 from wt_inspect_env.util.figure_io import check_figure_format
 from wt_inspect_env.util.interrupts import interrupts_deferred
-from wt_inspect_env.util.validation import check_choice
+from wt_inspect_env.util.validation import check_choice, check_positive_int
 
 from .policy import ALGOS, SB3Policy, algo_class, env_interface, load_sidecar, save_agent, sidecar_paths
 from .recipe import Recipe, default_recipe_path, load_recipe
@@ -401,12 +401,6 @@ def _policy_kwargs(recipe: Recipe) -> dict[str, Any]:
     return sb3_policy_kwargs(recipe.policy_kwargs)
 
 
-def _positive_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
-
-
 class TrainingInterrupted(KeyboardInterrupt):
     """``train`` was interrupted (SIGINT / SIGTERM): ``checkpoint`` is the resumable checkpoint
     saved at ``env_steps`` (None: nothing could be saved), ``signal`` the original interrupt."""
@@ -495,7 +489,7 @@ def resolve_run(algo: str, *, recipe: str | Path | Recipe | None, resume: str | 
     if rec.algo != algo:
         raise ValueError(f"recipe is for algorithm {rec.algo!r}, not {algo!r}")
     if eval_every is not None:
-        rec = dataclasses.replace(rec, eval_every_env_steps=_positive_int("eval_every", eval_every))
+        rec = dataclasses.replace(rec, eval_every_env_steps=check_positive_int("eval_every", eval_every))
     if ckpt_doc is not None and AgentSpec.from_dict(ckpt_doc["spec"]) != rec.spec:
         raise ValueError("the recipe's agent spec differs from the checkpoint's (features/action/repeat "
                          "must stay the same to resume)")
@@ -525,8 +519,8 @@ def train(algo: str, task: str, timesteps: int, n_envs: int, out: str | Path, *,
     check_figure_format(figure_format)
     check_choice("task", task, TASKS)
     check_choice("backend", backend, BACKENDS)
-    timesteps = _positive_int("timesteps", timesteps)
-    n_envs = _positive_int("n_envs", n_envs)
+    timesteps = check_positive_int("timesteps", timesteps)
+    n_envs = check_positive_int("n_envs", n_envs)
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     if max_minutes is not None and not (isinstance(max_minutes, (int, float)) and max_minutes > 0):

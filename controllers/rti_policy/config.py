@@ -11,19 +11,12 @@ from wt_inspect_env.physics.quadrotor import GRAVITY, QuadrotorParams, get_prese
 from wt_inspect_env.planner.config import CLEARANCE_BRAKE
 from wt_inspect_env.task.env_config import D_MIN_RATIO
 from wt_inspect_env.task.spaces import ActionScaling
-from wt_inspect_env.util.validation import check_choice, check_field_types, check_positive
+from wt_inspect_env.util.validation import check_choice, check_field_types, check_positive, check_positive_int
 
 from ..rti import OCP, RTIOptions
 from .weights import LSQWeights, ResidualScales
 
 BACKENDS = ("rti", "ipopt")
-
-
-def check_positive_int(name: str, value: Any) -> int:
-    """``value`` as an int if it is an integer >= 1 (not a bool); else a ValueError naming ``name``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
 
 
 def warm_start_shifts(control_dt: float, dt: float) -> int:

@@ -45,6 +45,13 @@ def check_positive(name: str, value: Any, *, allow_zero: bool = False) -> float:
     return v
 
 
+def check_positive_int(name: str, value: Any) -> int:
+    """``value`` as an int if it is an integer >= 1 (not a bool); else a ValueError naming ``name``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
 def check_range(name: str, value: Any, lo: float, hi: float) -> float:
     """Return ``value`` as a float, or raise if it lies outside ``[lo, hi]``."""
     v = check_finite(name, value)

@@ -65,15 +65,9 @@ from ..task.env_config import EnvConfig
 from ..task.hooks import TaskHooks
 from ..task.spaces import ActionScaling
 from ..task.turbine_draws import TurbineDistribution, TurbineDraw
-from ..util.validation import check_actions, check_positive
+from ..util.validation import check_actions, check_positive, check_positive_int
 from ..world.world import InspectionWorld, StepResult
-from .turbines import REDRAW, check_count, turbine_stream
-
-
-def _check_num_envs(num_envs: Any) -> int:
-    if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
-        raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
-    return int(num_envs)
+from .turbines import REDRAW, turbine_stream
 
 
 def _concat(results: list[StepResult]) -> StepResult:
@@ -99,10 +93,10 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
                  hooks: TaskHooks | None = None, turbines: TurbineDistribution | dict | None = None,
                  n_turbines: int = 1, redraw_every: int = 1, redraw_after_s: float | None = None,
                  **options: Any) -> None:
-        n = self.num_envs = _check_num_envs(num_envs)
+        n = self.num_envs = check_positive_int("num_envs", num_envs)
         self.turbines = None if turbines is None else TurbineDistribution.coerce(turbines)
-        g = self.n_turbines = check_count("n_turbines", n_turbines)
-        self.redraw_every = check_count("redraw_every", redraw_every)
+        g = self.n_turbines = check_positive_int("n_turbines", n_turbines)
+        self.redraw_every = check_positive_int("redraw_every", redraw_every)
         self.redraw_after_s = None if redraw_after_s is None else check_positive("redraw_after_s", redraw_after_s)
         if self.redraw_after_s is not None and self.redraw_every != 1:
             raise ValueError(f"give either redraw_every (episodes, got {redraw_every!r}) or redraw_after_s "

@@ -7,17 +7,10 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..task.turbine_draws import TurbineDistribution
-from ..util.validation import check_positive, check_unknown_options
+from ..util.validation import check_positive, check_positive_int, check_unknown_options
 
 REDRAW = "redraw"             # termination name of a drone cut short by its world's new turbine
 _TURBINE_STREAM = 0x7B1E      # mixed into a world's seed: its turbines' stream, apart from its drones'
-
-
-def check_count(name: str, value: Any) -> int:
-    """``value`` as a positive integer (a one-line ValueError naming ``name`` otherwise)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
-        raise ValueError(f"{name} must be a positive integer, got {value!r}")
-    return int(value)
 
 
 def turbine_stream(seed: int | None) -> np.random.Generator:
@@ -42,8 +35,8 @@ def many_turbine_kwargs(options: Any) -> dict[str, Any]:
     if "n_turbines" not in options:
         raise ValueError("turbines.n_turbines is required (the number of worlds, dividing the number of drones)")
     out = {"turbines": TurbineDistribution.coerce(options.get("distribution", {})),
-           "n_turbines": check_count("turbines.n_turbines", options["n_turbines"]),
-           "redraw_every": check_count("turbines.redraw_every", options.get("redraw_every", 1))}
+           "n_turbines": check_positive_int("turbines.n_turbines", options["n_turbines"]),
+           "redraw_every": check_positive_int("turbines.redraw_every", options.get("redraw_every", 1))}
     if "redraw_after_s" in options:
         if "redraw_every" in options:
             raise ValueError("turbines: give either redraw_every (episodes) or redraw_after_s (simulated seconds), "
