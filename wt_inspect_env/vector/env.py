@@ -50,6 +50,7 @@ running episode are :meth:`metrics` ``(i)``.
 """
 from __future__ import annotations
 
+import math
 from typing import Any, Sequence
 
 import gymnasium as gym
@@ -185,6 +186,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
             self.params, self.scaling = cfg.drone, ActionScaling.from_params(cfg.drone)
             self.dt, self.camera = 1.0 / cfg.ctrl_hz, GimbalCamera(cfg.camera)
             self.n_triangles = self.time_limit = None
+        # redraw_after_s in control steps (a world's flown time is counted in steps)
+        self._redraw_steps = None if self.redraw_after_s is None else math.ceil(self.redraw_after_s / self.dt - 1e-9)
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
         self.single_observation_space = observation_space(structure=self.config.structure_observation)
         self.action_space = batch_space(self.single_action_space, n)
@@ -379,10 +382,8 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         for g in range(self.n_turbines):
             self._ended[g] += int(ended[g * m:(g + 1) * m].sum())
             self._flown[g] += 1
-            if self.redraw_after_s is not None:
-                if self._flown[g] * self.dt >= self.redraw_after_s - 1e-9:
-                    due.append(g)
-            elif self._ended[g] >= self.redraw_every * m:
+            if (self._flown[g] >= self._redraw_steps if self._redraw_steps is not None
+                    else self._ended[g] >= self.redraw_every * m):
                 due.append(g)
         return due
 
