@@ -86,8 +86,9 @@ class Recipe:
         report shows it beside the full-mission target of :data:`agents.seeds.TARGET`. None: that
         target only.
     turbines: many turbines in one training run (vector backend): ``{"n_turbines": G,
-        "redraw_every": K, "distribution": {...}}`` (:func:`~wt_inspect_env.vector.turbines.many_turbine_kwargs`);
-        the drones fly G worlds on drawn turbines, each redrawn every K episodes of its drones.
+        "redraw_every": K | "redraw_after_s": T, "distribution": {...}}``
+        (:func:`~wt_inspect_env.vector.turbines.many_turbine_kwargs`); the drones fly G worlds on drawn
+        turbines, each redrawn every K episodes of its drones or every T simulated seconds.
         None (default): every drone on the turbine of ``env``. The periodic evaluation keeps ``eval_env``'s.
     """
 

@@ -6,7 +6,9 @@ merged) although no flight changed. Instead, a study that flies records, in its
 velocity at every whole second of the first :data:`SECONDS` simulated seconds, rounded to
 :data:`DECIMALS` decimals. ``wt-inspect reproduce --check`` flies that prefix of the same runs
 again with the current code and calls the study current when every sample agrees within
-:data:`TOLERANCE` - whatever files changed.
+:data:`TOLERANCE` - whatever files changed - or, for a run that misses, within :data:`NOISE_FACTOR`
+times the spread of its noise twins (:func:`noise_envelope`: the same run from starts moved by
+:data:`TWIN_OFFSETS_M`, for closed loops that amplify rounding).
 
 Why these numbers: between machines of one kind, floating point differs in the last digits, and
 over a whole 1,000 s mission a closed loop spreads that to the 5th-6th significant digit; over
@@ -49,8 +51,8 @@ TOLERANCE = 2e-3
 #: anything a controller could mean. Several, because how far one perturbation spreads is itself
 #: a matter of chance: the envelope is the largest of them.
 TWIN_OFFSETS_M = (1e-12, 1e-10, 1e-8)
-#: a recorded digest that differs from the re-flight by less than this many times the twin's
-#: divergence (at that sample or any earlier) still agrees: the difference is closed-loop noise
+#: a recorded digest that differs from the re-flight by less than this many times the twins'
+#: largest divergence (at that sample or any earlier) still agrees: the difference is closed-loop noise
 NOISE_FACTOR = 5.0
 
 
@@ -296,7 +298,7 @@ def noise_envelope(flown: Mapping[str, Any], twins: Sequence[Mapping[str, Any]])
             err = np.full(len(a), np.inf)
             if n:
                 err[:n] = np.abs(a[:n] - b[:n]).max(axis=-1)
-            env = np.maximum(env, np.maximum.accumulate(err) if len(err) else err)
+            env = np.maximum(env, np.maximum.accumulate(err))
         out[key] = env
     return out
 
