@@ -180,6 +180,15 @@ class EnvConfig:
         only (and no extra random draw, so the seeded stream is unchanged). Needs
         ``start_progress`` > 0.
     start_near_distance: see ``start_near_structure`` [m].
+    start_far: the share (in [0, 1]) of episodes that start far from the path, as whole missions
+        do: at the path's start, moved by ``start_offset`` plus a random offset of uniform length
+        in [0, ``start_far_distance``] and uniform direction without a downward part (the
+        randomised campaign's starts), drawn again while it lies closer than d_min to the
+        structure; the reference then approaches from there (``reference_approach_speed``).
+        Training on such episodes teaches the approach an agent otherwise only meets in
+        evaluation. 0 (default): no far starts (and no extra random draw, so the seeded stream is
+        unchanged).
+    start_far_distance: see ``start_far`` [m].
     working_margin: the working volume is the bounding box of the turbine, the path and the
         episode's start position, grown by this [m].
     pose_error_limit: end the episode (``terminated``, ``info["termination"] == "lost_pose"``, the
@@ -250,6 +259,8 @@ class EnvConfig:
     start_progress: float = 0.0
     start_near_structure: float = 0.0
     start_near_distance: float = 4.0
+    start_far: float = 0.0
+    start_far_distance: float = 30.0
     working_margin: float = 30.0
     pose_error_limit: float | None = None
     clearance_limit: float | None = None
@@ -341,6 +352,13 @@ class EnvConfig:
         if self.start_near_structure > 0.0 and self.start_progress <= 0.0:
             raise ValueError(f"start_near_structure ({self.start_near_structure!r}) needs start_progress > 0 "
                              "(the starts are drawn along that part of the path)")
+        check_positive("start_far", self.start_far, allow_zero=True)
+        if self.start_far > 1.0:
+            raise ValueError(f"start_far must be a share in [0, 1], got {self.start_far!r}")
+        check_positive("start_far_distance", self.start_far_distance)
+        if self.start_far > 0.0 and self.reference_approach_speed is None:
+            raise ValueError(f"start_far ({self.start_far!r}) needs a reference_approach_speed (the reference "
+                             "approaches from a far start), got None")
         check_positive("working_margin", self.working_margin)
         if self.pose_error_limit is not None:
             check_positive("pose_error_limit", self.pose_error_limit)

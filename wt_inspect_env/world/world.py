@@ -50,6 +50,7 @@ _MAX_EPISODE_WINDS = 8     # per drone: distinct reset(options={"wind": ...}) fi
 START_CLEARANCE_MARGIN = 0.1   # [m] a noisy start keeps this much more than clearance_limit
 START_REDRAWS = 16             # noisy starts drawn before the noise-free one is taken
 NEAR_START_SAMPLES = 4096      # points of the start range searched for poses near the structure
+FAR_START_REDRAWS = 100        # far starts drawn before the path's start itself is taken
 
 
 def grow_to_start(lo: np.ndarray, hi: np.ndarray, start: np.ndarray, margin: float
@@ -175,6 +176,7 @@ class InspectionWorld:
                            if cfg.structure_observation or self._clearance_terms else None)
         self._structure_cache: tuple[np.ndarray, ...] | None = None     # (state, phases, vectors, distances)
         self._near_starts: dict[tuple[float, float], np.ndarray] = {}   # (progress, distance) -> fractions
+        self._start_distances: DistanceField | None = None   # without _structure: for drawing starts
 
     # ------------------------------------------------------------------ queries
     @property
@@ -239,11 +241,15 @@ class InspectionWorld:
         rng, ep = self.rng(i), self.episode[i]
         self.winds[i].reset(int(rng.integers(2**63 - 1)))
         self.set_phase(i, 0)
-        frac = self._start_fraction(i, ep, rng)
+        far = ep.start_far > 0 and rng.uniform() < ep.start_far
+        frac = 0.0 if far else self._start_fraction(i, ep, rng)
         self.reference.reset(i, frac)
         s = self.reference.sample
-        state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
-        state = self._clear_start(i, state, s, ep, rng)
+        if far:
+            state = self._far_start(i, s, ep, rng)
+        else:
+            state = start_state(s.ideal_position[i], s.point[i], ep.start_offset, ep.start_noise, rng)
+            state = self._clear_start(i, state, s, ep, rng)
         # Drawn after the start (so without randomisation the seeded stream is unchanged).
         r = self.randomization[i] = (None if ep.randomization is None
                                      else draw_randomization(ep.randomization, self.params, rng))
@@ -293,9 +299,7 @@ class InspectionWorld:
             for k, f in enumerate(fracs):
                 self.reference.reset(i, float(f))
                 poses[k] = self.reference.sample.ideal_position[i]
-            field = (self._structure[0] if self._structure is not None
-                     else DistanceField(self.mission.turbines[0].mesh.triangles))
-            dist = field.closest(poses)[1]
+            dist = self._start_field().closest(poses)[1]
             near = fracs[dist < ep.start_near_distance]
             if not len(near):
                 raise ValueError(f"start_near_structure: no ideal pose of the first start_progress="
@@ -304,6 +308,32 @@ class InspectionWorld:
                                  f"{float(dist.min()):.2f} m)")
             self._near_starts[key] = near
         return self._near_starts[key]
+
+    def _far_start(self, i: int, s: Any, ep: EnvConfig, rng: np.random.Generator) -> np.ndarray:
+        """A ``start_far`` start of drone ``i`` (at the path's start): ``start_offset`` plus an offset
+        of uniform length in [0, ``start_far_distance``] and uniform direction with no downward
+        part - the randomised campaign's starts - plus ``start_noise``, drawn again (up to
+        :data:`FAR_START_REDRAWS` times, then the path's start itself) while closer than d_min to
+        the first rotor position's structure or below the ground."""
+        field = self._start_field()
+        need = float(self.config.d_min)
+        for _ in range(FAR_START_REDRAWS):
+            v = rng.normal(size=3)
+            v[2] = abs(v[2])
+            offset = np.asarray(ep.start_offset, dtype=float) + rng.uniform(0.0, ep.start_far_distance) * (
+                v / max(float(np.linalg.norm(v)), 1e-12))
+            state = start_state(s.ideal_position[i], s.point[i], offset, ep.start_noise, rng)
+            if state[2] >= need and float(field.closest(state[None, 0:3])[1][0]) >= need:
+                return state
+        return start_state(s.ideal_position[i], s.point[i], ep.start_offset, 0.0, rng)
+
+    def _start_field(self) -> DistanceField:
+        """Distances to the first rotor position's mesh (the clearance structure when it exists)."""
+        if self._structure is not None:
+            return self._structure[0]
+        if self._start_distances is None:
+            self._start_distances = DistanceField(self.mission.turbines[0].mesh.triangles)
+        return self._start_distances
 
     def _clear_start(self, i: int, state: np.ndarray, s: Any, ep: Any, rng: np.random.Generator) -> np.ndarray:
         """With ``clearance_limit`` and ``start_noise``, a start whose noise put it closer than the
