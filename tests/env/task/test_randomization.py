@@ -4,6 +4,7 @@ from __future__ import annotations
 import gymnasium as gym
 import numpy as np
 import pytest
+from side_by_side import _run_side_by_side
 
 import wt_inspect_env  # noqa: F401 - registers the ids
 from wt_inspect_env.physics.quadrotor import GRAVITY, get_preset
@@ -187,8 +188,6 @@ def test_observation_noise_has_the_drawn_spread_and_leaves_the_rest_exact(lab_en
 @pytest.mark.parametrize("n", [1, pytest.param(3, marks=pytest.mark.slow)])
 def test_vector_env_drone_i_is_the_randomised_single_env_seeded_s_plus_i(n):
     """Randomised plants, noise and latency per drone, across autoresets: still bit for bit."""
-    from test_vector_env import _run_side_by_side
-
     wide = dict(latency_steps=(0, 3), position_noise=(0.0, 0.05), attitude_noise=(0.0, 0.02))
     seen = _run_side_by_side(n, 160, env_id=SURFACE, randomization=wide, start_noise=0.2, time_limit_s=0.5)
     assert seen["resets"] >= n

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from side_by_side import _run_side_by_side
 
 from wt_inspect_env.planner.clearance import DistanceField
 from wt_inspect_env.task.env_config import EnvConfig
@@ -70,3 +71,11 @@ def test_a_share_of_far_starts_and_without_the_option_the_stream_is_unchanged():
 def test_bad_far_start_options_are_named(options, match):
     with pytest.raises(ValueError, match=match):
         EnvConfig.from_kwargs(**options)
+
+
+@pytest.mark.slow
+def test_vector_env_drone_i_with_far_starts_is_the_single_env_across_autoresets():
+    """Far starts, their approach and the pose limit on it, per drone as in the single env."""
+    seen = _run_side_by_side(2, 120, start_far=1.0, start_far_distance=R, start_noise=0.3, time_limit_s=0.4,
+                             pose_error_limit=3.0)
+    assert seen["resets"] >= 2
