@@ -178,7 +178,9 @@ class EnvConfig:
         the path passes closest. Uniform starts put a few per cent of the episodes there, and an
         agent that keeps d_min by itself has to learn those passes; 0 (default): uniform starts
         only (and no extra random draw, so the seeded stream is unchanged). Needs
-        ``start_progress`` > 0.
+        ``start_progress`` > 0. On a path whose poses all keep farther off (a turbine drawn by
+        the many-turbine vector env), the starts are drawn among its closest passes: the poses
+        within 0.5 m of the closest one's distance.
     start_near_distance: see ``start_near_structure`` [m].
     start_far: the share (in [0, 1]) of episodes that start far from the path, as whole missions
         do: at the path's start, moved by ``start_offset`` plus a random offset of uniform length

@@ -50,6 +50,7 @@ _MAX_EPISODE_WINDS = 8     # per drone: distinct reset(options={"wind": ...}) fi
 START_CLEARANCE_MARGIN = 0.1   # [m] a noisy start keeps this much more than clearance_limit
 START_REDRAWS = 16             # noisy starts drawn before the noise-free one is taken
 NEAR_START_SAMPLES = 4096      # points of the start range searched for poses near the structure
+NEAR_START_FALLBACK_M = 0.5    # no pose within start_near_distance: the poses this close to the closest
 FAR_START_REDRAWS = 100        # far starts drawn before the path's start itself is taken
 
 
@@ -290,8 +291,10 @@ class InspectionWorld:
 
     def _near_fractions(self, i: int, ep: EnvConfig) -> np.ndarray:
         """The sample fractions of the first ``start_progress`` of the path whose ideal pose lies
-        within ``start_near_distance`` of the first rotor position's mesh (found once per range on
-        drone ``i``'s reference row, which its reset overwrites next)."""
+        within ``start_near_distance`` of the first rotor position's mesh - or, where none does,
+        within :data:`NEAR_START_FALLBACK_M` of the closest pose's distance - found once per range
+        on drone ``i``'s reference row, which its reset overwrites next. (The many-turbine vector
+        env draws turbines whose paths may all keep farther off than the recipe's distance.)"""
         key = (float(ep.start_progress), float(ep.start_near_distance))
         if key not in self._near_starts:
             fracs = np.arange(NEAR_START_SAMPLES) * (ep.start_progress / NEAR_START_SAMPLES)
@@ -300,13 +303,11 @@ class InspectionWorld:
                 self.reference.reset(i, float(f))
                 poses[k] = self.reference.sample.ideal_position[i]
             dist = self._start_field().closest(poses)[1]
-            near = fracs[dist < ep.start_near_distance]
-            if not len(near):
-                raise ValueError(f"start_near_structure: no ideal pose of the first start_progress="
-                                 f"{ep.start_progress!r} of the path lies within start_near_distance="
-                                 f"{ep.start_near_distance!r} m of the structure (the closest is "
-                                 f"{float(dist.min()):.2f} m)")
-            self._near_starts[key] = near
+            # a path that never comes within the distance (a drawn turbine whose poses all keep
+            # farther off) starts at its closest passes instead
+            closest = float(dist.min())
+            within = ep.start_near_distance if closest < ep.start_near_distance else closest + NEAR_START_FALLBACK_M
+            self._near_starts[key] = fracs[dist < within]
         return self._near_starts[key]
 
     def _far_start(self, i: int, s: Any, ep: EnvConfig, rng: np.random.Generator) -> np.ndarray:

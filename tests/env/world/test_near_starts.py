@@ -58,11 +58,13 @@ def test_bad_near_start_options_are_named(options, match):
         EnvConfig.from_kwargs(**options)
 
 
-def test_a_distance_no_pose_comes_within_is_one_clear_error():
-    env = WindTurbineInspectionVectorEnv(num_envs=2, task="full", wind="none", start_progress=0.5,
-                                         start_near_structure=1.0, start_near_distance=0.5)
-    try:
-        with pytest.raises(ValueError, match=r"distance=0.5 m of the structure \(the closest is 3\.\d\d m\)"):
-            env.reset(seed=0)
-    finally:
-        env.close()
+@pytest.mark.slow
+def test_a_path_that_never_comes_within_the_distance_starts_at_its_closest_passes():
+    """A drawn turbine may keep every pose farther off than the recipe's distance (a training run
+    stopped on such a draw); then the near starts are the poses within 0.5 m of the closest."""
+    _, uniform = _start_clearance()
+    _, near = _start_clearance(start_near_structure=1.0, start_near_distance=0.5)
+    closest = float(uniform.min())
+    assert closest > 3.0                              # the paper path keeps more than 0.5 m off
+    assert np.all(near < closest + 0.5 + 0.1)         # every start among the closest passes ...
+    assert np.mean(near < closest + 0.5 + 0.1) > np.mean(uniform < closest + 0.6) + 0.5   # ... unlike uniform
