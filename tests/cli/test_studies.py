@@ -53,12 +53,20 @@ def test_sm_vs_wind_interpolation():
 
 
 def test_routes_redraws_from_json_and_extracts_runs(tmp_path):
+    from wt_inspect.studies.routes import ROUTES
     out = tmp_path / "routes"
     out.mkdir()
-    shutil.copy(ROOT / "results/training/routes/routes.json", out / "routes.json")
+    kept = [{"env_steps": 4000000, "wall_min": 38.5, "coverage": 1.0, "safety_sm": 0.9, "centering_cm": 0.99},
+            {"env_steps": 6000000, "wall_min": 55.3, "coverage": 1.0, "safety_sm": 1.0, "centering_cm": 0.987}]
+    fixture = {"runs": ROUTES, "target": {"coverage": 0.99, "safety_sm": 0.99, "centering_cm": 0.995},
+               "routes": {"PPO from scratch, full task": [{"env_steps": 5, "wall_min": 0.5, "coverage": 0.0,
+                                                           "safety_sm": 0.0, "centering_cm": 0.5}],
+                          "PPO curriculum: surface -> blade -> full -> fine centering": kept}}
+    (out / "routes.json").write_text(json.dumps(fixture))
     assert cli_main(["study", "routes", "--out", str(out), "--from-json"]) == 0
     assert (out / "routes.png").stat().st_size > 0
-    # --add: one route's run extracted from a runs root, the others keep their committed points
+    assert json.loads((out / "routes.json").read_text()) == fixture          # --from-json only redraws
+    # --add: one route's run extracted from a runs root, the others keep their points
     runs = tmp_path / "runs" / "ppo_scratch"
     runs.mkdir(parents=True)
     (runs / "evaluations.json").write_text(json.dumps([{"env_steps": 10, "wall_time_s": 60.0, "mean": {
@@ -68,6 +76,7 @@ def test_routes_redraws_from_json_and_extracts_runs(tmp_path):
     routes = json.loads((out / "routes.json").read_text())["routes"]
     assert routes["PPO from scratch, full task"] == [{"env_steps": 10, "wall_min": 1.0, "coverage": 0.5,
                                                       "safety_sm": 0.25, "centering_cm": 0.9}]
+    assert routes["PPO curriculum: surface -> blade -> full -> fine centering"] == kept
     assert cli_main(["study", "routes", "--out", str(out), "--add", str(tmp_path / "runs"), "nope"]) == 2
 
 

@@ -6,7 +6,7 @@ covered by the layering test and run from any directory::
 
     wt-inspect study sm-vs-wind   --results results        # results/paper_faithful_wind/sm_vs_wind.{csv,png}
     wt-inspect study wind-offset  --out results/lab/wind_offset.csv
-    wt-inspect study routes       --from-json --out results/training/routes
+    wt-inspect study routes       RUNS_ROOT --out routes   # routes/routes.{json,png}, from runs not committed
     wt-inspect study hold-check   --seconds 12             # printed; quoted in results/imitation/dagger
     wt-inspect study safety-filter --starts 1000 --out results/safety_filter
     wt-inspect study pose-sweep   --turbine paper --out results/pose_sweep/paper --jobs 2

@@ -3,11 +3,10 @@
 The training runs live outside the repository (their checkpoints are hundreds of MB); this script
 reads their ``evaluations.json`` (each a periodic evaluation on the full mission at 4 m/s,
 deterministic policy), writes the extracted points to ``OUT/routes.json`` and draws ``OUT/routes.png``
-(``--out`` default ``results/training/routes``). ``wt-inspect study routes RUNS_ROOT`` with RUNS_ROOT
-holding the run directories named below; ``--from-json`` redraws the figure from the committed
-``routes.json``; ``--add RUNS_ROOT LABEL...`` extracts only the named routes from RUNS_ROOT into the
-committed ``routes.json`` (routes whose runs are on another machine keep their committed points) and
-redraws.
+(``--out`` default ``routes`` in the current directory). ``wt-inspect study routes RUNS_ROOT`` with
+RUNS_ROOT holding the run directories named below; ``--from-json`` redraws the figure from an existing
+``OUT/routes.json``; ``--add RUNS_ROOT LABEL...`` extracts only the named routes from RUNS_ROOT into
+``OUT/routes.json`` (routes whose runs are on another machine keep their points) and redraws.
 """
 from __future__ import annotations
 
@@ -19,7 +18,7 @@ from agents.curves import plot_routes, route_points
 from agents.seeds import TARGET
 from wt_inspect_env.util.atomic_io import write_text_atomic
 
-DEFAULT_OUT = Path("results/training/routes")
+DEFAULT_OUT = Path("routes")
 ROUTES = {
     "PPO from scratch, full task": ["ppo_scratch"],
     "behaviour cloning (VT-NMPC+ demos) + PPO": ["bc/seed_0", "bc_ppo"],
