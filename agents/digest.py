@@ -56,7 +56,6 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
                                          ckpt_doc=ckpt_doc, recipe=recipe, trust_model=trust_model, legacy=legacy)
         try:
             vector = _vector_env(venv)
-            world = vector.world
             rows = [0, n_envs - 1]
             samples: dict[str, list] = {"position": [], "velocity": [], "reward": []}
             first_obs: list[np.ndarray] = []
@@ -75,7 +74,7 @@ def first_update_digest(algo: str, task: str, n_envs: int, timesteps: int, *, re
                 def _on_step(self) -> bool:
                     if len(samples["position"]) >= n_steps:
                         return False
-                    state = world.sim.state
+                    state = vector.state
                     raw = np.asarray(vecnorm.get_original_reward() if vecnorm is not None else self.locals["rewards"],
                                      dtype=float)
                     total[:] += np.append(raw[rows], raw.mean())

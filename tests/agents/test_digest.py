@@ -67,3 +67,16 @@ def test_the_digest_ignores_the_learners_thread_count_and_sees_a_changed_task_or
     clip = dataclasses.replace(small, algo_kwargs={**small.algo_kwargs, "clip_range": 0.05})
     why = behaviour.compare(reference, _digest(clip))
     assert why and not why.startswith(("position", "velocity", "reward")), why   # the same rollout, another update
+
+
+@pytest.mark.slow
+def test_a_many_turbine_recipe_is_digested_over_its_worlds():
+    """With many turbines there is no single world: the digest reads every drone's state through
+    the vector env (the first and the last drone fly different worlds' turbines)."""
+    rec = load_recipe("agents/recipes/ppo_full_many.json")
+    rec = dataclasses.replace(rec, algo_kwargs={**rec.algo_kwargs, "n_steps": 4, "batch_size": 16},
+                              turbines={**rec.turbines, "n_turbines": 2})
+    d = first_update_digest("ppo", "full", 8, 100_000, recipe=rec, seed=0)
+    assert np.shape(d["position"]) == (4, 6) and np.all(np.isfinite(d["position"]))
+    first, last = np.asarray(d["position"])[0].reshape(2, 3)
+    assert np.linalg.norm(first - last) > 1.0      # two drones on two turbines' paths, not one spot

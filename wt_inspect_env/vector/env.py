@@ -319,6 +319,13 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         return w.metrics(j).to_dict()
 
     @property
+    def state(self) -> np.ndarray:
+        """Each drone's simulator state (position, velocity, quaternion, ... as
+        :attr:`~wt_inspect_env.world.batched_sim.BatchedQuadrotorSim.state`), over all worlds - also
+        with many turbines, where there is no single :attr:`sim` (a copy then)."""
+        return self._cat([w.sim.state for w in self.worlds])
+
+    @property
     def coverage(self) -> np.ndarray:
         """Each drone's coverage of its running episode."""
         return self._cat([w.coverage for w in self.worlds])
