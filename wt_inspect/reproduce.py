@@ -24,7 +24,8 @@ studies that are current by their code version (that code made them) digests flo
 Running: studies are run in manifest order, skipping those that are current (``--force`` reruns
 them); each command resumes where it was interrupted (the commands themselves resume), and a study
 whose commands did not all succeed gets no provenance. ``--only`` selects studies by name,
-``--jobs``/``--backend`` are passed to the commands that take them.
+``--jobs``/``--backend`` are passed to the commands that take them; with ``--check``, ``--jobs``
+processes re-fly the studies' digests side by side (same verdicts, same report).
 """
 from __future__ import annotations
 
@@ -271,19 +272,54 @@ def _judged_by_flight(root: Path, study: Study) -> bool:
     return bool(prov and prov.get("complete") and prov.get("behaviour"))
 
 
-def check(root: Path, studies: list[Study], out=sys.stdout, *, fly: bool = True, progress: bool = False) -> int:
+def _staleness_job(root: Path, study: Study, fingerprint: str, fly: bool) -> str:
+    """:func:`staleness` in a worker process of :func:`check` (a module-level function: it is pickled)."""
+    return staleness(root, study, fingerprint, fly=fly)
+
+
+def _staleness_all(root: Path, studies: list[Study], fingerprint: str, *, fly: bool, jobs: int,
+                   progress: bool) -> list[str]:
+    """:func:`staleness` of every study, in the studies' order, over ``jobs`` processes.
+
+    Why processes: re-flying the digests is nearly all of the check's time, one study's flights
+    are independent of another's, and each flight is single-threaded Python and C. Workers are
+    spawned, not forked - the parent may hold PyBullet and torch state that a fork would copy
+    half-initialised."""
+    from tqdm import tqdm
+    bar = tqdm(total=len(studies), desc="check", unit="study", disable=not progress, file=sys.stderr)
+    reasons: list[str] = [""] * len(studies)
+    with bar:
+        if jobs <= 1 or not fly or len(studies) < 2:
+            for i, s in enumerate(studies):
+                bar.set_postfix_str(s.name)
+                reasons[i] = staleness(root, s, fingerprint, fly=fly)
+                bar.update()
+            return reasons
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+        with ProcessPoolExecutor(max_workers=min(jobs, len(studies)),
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(_staleness_job, root, s, fingerprint, fly): i for i, s in enumerate(studies)}
+            for fut in as_completed(futures):
+                i = futures[fut]
+                reasons[i] = fut.result()
+                bar.set_postfix_str(studies[i].name)
+                bar.update()
+    return reasons
+
+
+def check(root: Path, studies: list[Study], out=sys.stdout, *, fly: bool = True, progress: bool = False,
+          jobs: int = 1) -> int:
     """Print every problem (one line each) and a summary; 0 when nothing unlisted is stale.
-    ``fly``: re-fly the recorded behaviour digests (else they are taken as recorded)."""
+    ``fly``: re-fly the recorded behaviour digests (else they are taken as recorded); ``jobs``:
+    processes that re-fly them side by side (the verdicts and the report do not depend on it)."""
     from wt_inspect.evaluation.runner import code_fingerprint
     fp = code_fingerprint()
     listed = listed_stale(root)
     names = {s.name for s in studies}
     problems, stale = [], []
-    from tqdm import tqdm
-    bar = tqdm(studies, desc="check", unit="study", disable=not progress, file=sys.stderr)
-    for s in bar:
-        bar.set_postfix_str(s.name)
-        why = staleness(root, s, fp, fly=fly)
+    reasons = _staleness_all(root, studies, fp, fly=fly, jobs=jobs, progress=progress)
+    for s, why in zip(studies, reasons):
         if why:
             stale.append(s.name)
             if s.name not in listed:
@@ -435,7 +471,8 @@ def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
     mode.add_argument("--update-readme", action="store_true",
                       help="rewrite the README's number tables from the results files they name")
     ap.add_argument("--only", default=None, help="comma-separated study names")
-    ap.add_argument("--jobs", type=int, default=None, help="passed to the commands that take --jobs")
+    ap.add_argument("--jobs", type=int, default=None,
+                    help="passed to the commands that take --jobs; with --check, processes that re-fly the digests")
     ap.add_argument("--backend", choices=("local", "ray"), default=None, help="passed to the evaluations")
     ap.add_argument("--force", action="store_true", help="rerun current studies too")
     ap.add_argument("--root", default=".", help="the checkout's root (default: the current directory)")
@@ -456,7 +493,7 @@ def main(argv: list[str], prog: str = "wt-inspect reproduce") -> int:
             ap.error(f"unknown study {unknown[0]!r}; known: {', '.join(s.name for s in studies)}")
         studies = [s for s in studies if s.name in wanted]
     if args.check:
-        return check(root, studies, progress=not args.no_progress)
+        return check(root, studies, progress=not args.no_progress, jobs=args.jobs or 1)
     if args.record_behaviour:
         return _record_current(root, studies, force=args.force)
     if args.update_readme:

@@ -75,6 +75,24 @@ def test_a_study_listed_for_its_flown_digests_stays_listed_when_the_check_does_n
 
 
 @pytest.mark.slow
+def test_the_check_over_two_processes_reports_what_one_does(tmp_path):
+    """``--check --jobs 2`` re-flies studies in spawned workers: the same verdicts, in manifest
+    order, and the same exit status as in one process - with a stale unlisted study among them."""
+    root = _tiny_checkout(tmp_path)
+    smw = reproduce.load_manifest(root / reproduce.MANIFEST)[1]
+    prov = {"study": "smw", "commands": list(smw.commands), "complete": True, "code": reproduce.code_version(smw)}
+    (root / smw.folder / "provenance.json").write_text(json.dumps(prov))
+    studies = reproduce.load_manifest(root / reproduce.MANIFEST)
+    outs = []
+    for jobs in (1, 2):
+        out = io.StringIO()
+        assert reproduce.check(root, studies, out=out, jobs=jobs) == 1
+        outs.append(out.getvalue())
+    assert outs[0] == outs[1]
+    assert "stale, not in results/STALE.md: faithful" in outs[1] and "1 current, 1 stale" in outs[1]
+
+
+@pytest.mark.slow
 def test_run_writes_provenance_and_check_follows_it(tmp_path, monkeypatch):
     monkeypatch.setenv("MPLBACKEND", "Agg")
     root = _tiny_checkout(tmp_path)
