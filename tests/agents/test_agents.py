@@ -297,6 +297,17 @@ def test_episode_variants_draw_reproducibly_by_weight_and_check_spaces():
 
 
 # ----------------------------------------------------------------------------------------- recipes
+def test_the_second_stage_recipe_can_resume_its_base_models():
+    """ppo_full_many_robust.json fine-tunes ppo_full_many.json's models (results/reproduce.toml):
+    ``--resume`` refuses a recipe whose agent spec (features, action, repeat) differs from the
+    checkpoint's, and the stage must not silently change the network either."""
+    from agents.recipe import RECIPE_DIR
+    base, stage = load_recipe(RECIPE_DIR / "ppo_full_many.json"), load_recipe(RECIPE_DIR / "ppo_full_many_robust.json")
+    assert stage.spec == base.spec
+    assert stage.policy_kwargs == base.policy_kwargs
+    assert stage.algo_kwargs["learning_rate"] < base.algo_kwargs["learning_rate"]
+
+
 def test_shipped_recipes_load_and_bad_keys_list_valid_ones(tmp_path):
     from agents.recipe import RECIPE_DIR
     for path in sorted(RECIPE_DIR.glob("*.json")):
