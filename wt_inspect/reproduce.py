@@ -272,11 +272,6 @@ def _judged_by_flight(root: Path, study: Study) -> bool:
     return bool(prov and prov.get("complete") and prov.get("behaviour"))
 
 
-def _staleness_job(root: Path, study: Study, fingerprint: str, fly: bool) -> str:
-    """:func:`staleness` in a worker process of :func:`check` (a module-level function: it is pickled)."""
-    return staleness(root, study, fingerprint, fly=fly)
-
-
 def _staleness_all(root: Path, studies: list[Study], fingerprint: str, *, fly: bool, jobs: int,
                    progress: bool) -> list[str]:
     """:func:`staleness` of every study, in the studies' order, over ``jobs`` processes.
@@ -299,7 +294,7 @@ def _staleness_all(root: Path, studies: list[Study], fingerprint: str, *, fly: b
         from concurrent.futures import ProcessPoolExecutor, as_completed
         with ProcessPoolExecutor(max_workers=min(jobs, len(studies)),
                                  mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(_staleness_job, root, s, fingerprint, fly): i for i, s in enumerate(studies)}
+            futures = {pool.submit(staleness, root, s, fingerprint, fly=fly): i for i, s in enumerate(studies)}
             for fut in as_completed(futures):
                 i = futures[fut]
                 reasons[i] = fut.result()
