@@ -37,16 +37,23 @@ def check_entries(groups: Any, keys: Any) -> None:
                              f"make the env with {NEEDS_OPTION[g][1]}=True")
 
 
+def camera_headings(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(sin, cos)`` (each (n,)) of the horizontal angle from each camera axis (the horizontal
+    projection of ``R e_x``, R (n, 3, 3); the gimbal levels the camera) to its inspection point
+    (n, 3) seen from ``position`` (n, 3); ``(0, 1)`` when either is vertical."""
+    fx, fy = R[:, 0, 0], R[:, 1, 0]
+    ax, ay = point[:, 0] - position[:, 0], point[:, 1] - position[:, 1]
+    nf, na = np.hypot(fx, fy), np.hypot(ax, ay)
+    ok = (nf >= 1e-9) & (na >= 1e-9)
+    d = np.where(ok, nf * na, 1.0)
+    return np.where(ok, (fx * ay - fy * ax) / d, 0.0), np.where(ok, (fx * ax + fy * ay) / d, 1.0)
+
+
 def camera_heading(R: np.ndarray, position: np.ndarray, point: np.ndarray) -> tuple[float, float]:
-    """``(sin, cos)`` of the horizontal angle from the camera axis (the horizontal projection of
-    ``R e_x``; the gimbal levels the camera) to the inspection point; ``(0, 1)`` when either is
-    vertical."""
-    fx, fy = float(R[0, 0]), float(R[1, 0])
-    ax, ay = float(point[0] - position[0]), float(point[1] - position[1])
-    nf, na = math.hypot(fx, fy), math.hypot(ax, ay)
-    if nf < 1e-9 or na < 1e-9:
-        return 0.0, 1.0
-    return (fx * ay - fy * ax) / (nf * na), (fx * ax + fy * ay) / (nf * na)
+    """:func:`camera_headings` of one camera (R (3, 3), position and point (3,)), as floats."""
+    s, c = camera_headings(np.asarray(R, dtype=float)[None], np.asarray(position, dtype=float)[None],
+                           np.asarray(point, dtype=float)[None])
+    return float(s[0]), float(c[0])
 
 
 class BatchedFeatures:
@@ -121,7 +128,11 @@ class BatchedFeatures:
 
     def heading_cos(self, i: int) -> float:
         """Cosine of drone ``i``'s camera heading error at its last update."""
-        return camera_heading(self._R[i], self._obs["position"][i], self._obs["point"][i])[1]
+        return float(self.heading_cos_of(np.array([i]))[0])
+
+    def heading_cos_of(self, idx: np.ndarray) -> np.ndarray:
+        """Cosines (len(idx),) of drones ``idx``'s camera heading errors at their last update."""
+        return camera_headings(self._R[idx], self._obs["position"][idx], self._obs["point"][idx])[1]
 
     def features(self) -> np.ndarray:
         """(n, F) float32 features of every drone's last update (and last noted action)."""
@@ -145,13 +156,7 @@ class BatchedFeatures:
             elif g == "gravity_body":
                 parts.append(-R[:, 2, :])
             elif g == "heading":
-                fx, fy = R[:, 0, 0], R[:, 1, 0]
-                ax, ay = point[:, 0] - x[:, 0], point[:, 1] - x[:, 1]
-                nf, na = np.hypot(fx, fy), np.hypot(ax, ay)
-                ok = (nf >= 1e-9) & (na >= 1e-9)
-                d = np.where(ok, nf * na, 1.0)
-                parts.append(np.stack([np.where(ok, (fx * ay - fy * ax) / d, 0.0),
-                                       np.where(ok, (fx * ax + fy * ay) / d, 1.0)], axis=1))
+                parts.append(np.stack(camera_headings(R, x, point), axis=1))
             elif g == "body_rates":
                 parts.append(o["body_rates"] / self.max_rate)
             elif g == "normal_body":

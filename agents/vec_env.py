@@ -58,6 +58,10 @@ class BatchedAgentInterface:
         """Cosine of drone ``i``'s camera heading error at its last update."""
         return self.encoder.heading_cos(i)
 
+    def heading_cos_of(self, idx: np.ndarray) -> np.ndarray:
+        """Cosines of drones ``idx``'s camera heading errors at their last update."""
+        return self.encoder.heading_cos_of(idx)
+
     def features(self) -> np.ndarray:
         """The agent's features of every drone, (n, size)."""
         return self.encoder.features()
@@ -156,9 +160,9 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                     if self._coarse_w > 0.0:
                         e2 = np.einsum("ij,ij->i", self.iface.err[fin], self.iface.err[fin])
                         total[fin] += np.where(term[fin], 0.0, self._coarse_w / (1.0 + self._coarse_k * e2))
-                    if self.shaping.centering_fine_weight > 0.0:
-                        for i in fin[~term[fin]].tolist():
-                            total[i] += self.shaping.centering_fine(self.venv.dt, self.iface.heading_cos(i))
+                    kept = fin[~term[fin]]
+                    if self.shaping.centering_fine_weight > 0.0 and len(kept):
+                        total[kept] += self.shaping.centering_fine_batch(self.venv.dt, self.iface.heading_cos_of(kept))
                     feats = self.iface.features()
                     fm = info["final_info"]["metrics"]
                     for i in fin.tolist():
@@ -179,9 +183,8 @@ def make_inspection_vec_env(task: str, options: Mapping[str, Any], spec: AgentSp
                     if self._coarse_w > 0.0:
                         e2 = np.einsum("ij,ij->i", self.iface.err[lc], self.iface.err[lc])
                         total[lc] += self._coarse_w / (1.0 + self._coarse_k * e2)
-                    if self.shaping.centering_fine_weight > 0.0:
-                        for i in lc.tolist():
-                            total[i] += self.shaping.centering_fine(self.venv.dt, self.iface.heading_cos(i))
+                    if self.shaping.centering_fine_weight > 0.0 and len(lc):
+                        total[lc] += self.shaping.centering_fine_batch(self.venv.dt, self.iface.heading_cos_of(lc))
                 done |= ended
                 raw = obs
             self._raw = raw

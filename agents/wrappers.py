@@ -242,7 +242,11 @@ class ShapingConfig:
         whose slope vanishes at the optimum (``h = cos 9 deg = 0.988`` earns 98.8 % of a perfect
         heading), so a policy that flies the path well has almost no gradient left toward the last
         degrees of centering; this kernel is steep exactly there."""
-        return self.centering_fine_weight * dt * math.exp(
+        return float(self.centering_fine_batch(dt, np.array([heading_cos], dtype=float))[0])
+
+    def centering_fine_batch(self, dt: float, heading_cos: np.ndarray) -> np.ndarray:
+        """:meth:`centering_fine` of each of the cosines ``heading_cos`` (n,)."""
+        return self.centering_fine_weight * dt * np.exp(
             -(1.0 - heading_cos) / (1.0 - math.cos(math.radians(self.centering_fine_scale_deg))))
 
 

@@ -264,6 +264,8 @@ class WindTurbineInspectionEnv(gym.Env):
         coverage is not touched, the frames go into a new tracker, which is returned.
         """
         w = self.world
+        if not w.camera_every:
+            raise ValueError("camera_hz is 0: this env takes no coverage frames to re-score")
         pos = check_array("position", position, (None, 3))
         quat = check_array("quaternion", quaternion, (len(pos), 4))
         ph, wait = np.asarray(phase), np.asarray(waiting)

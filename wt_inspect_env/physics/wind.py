@@ -321,6 +321,8 @@ class DrydenWind(WindField):
     _KEEP_CHUNKS = 256
 
     def _restart(self) -> None:
+        # counts restarts (a reseed or a replay): tells a WindBatch its copy of a chunk is old
+        self._generation = getattr(self, "_generation", -1) + 1
         self._gen = np.random.default_rng(self._seed_seq)
         self._x = self._P_chol @ self._gen.standard_normal(self._phi.shape[0])  # stationary start
         self._first_chunk = 0                           # index of self._chunks[0]
@@ -350,12 +352,17 @@ class DrydenWind(WindField):
         i = int(k)
         frac = k - i
         c, j = divmod(i, self._CHUNK)
+        chunk = self.chunk(c)
+        return (1.0 - frac) * chunk[j] + frac * chunk[j + 1]
+
+    def chunk(self, c: int) -> np.ndarray:
+        """The ``(_CHUNK + 1, 3)`` turbulence samples of grid points ``c * _CHUNK`` to
+        ``(c + 1) * _CHUNK`` (generated on demand; older than the stored window: replayed from 0)."""
         if c < self._first_chunk:  # older than the stored window: replay from t = 0
             self._restart()
         while c >= self._first_chunk + len(self._chunks):
             self._extend()
-        chunk = self._chunks[c - self._first_chunk]
-        return (1.0 - frac) * chunk[j] + frac * chunk[j + 1]
+        return self._chunks[c - self._first_chunk]
 
     def _velocity(self, t: float, positions: np.ndarray) -> np.ndarray:
         v = self._axes @ self.turbulence(t)
@@ -479,19 +486,61 @@ _WIND_OPTIONS: dict[str, tuple[str, ...]] = {
 }
 
 
+class _DrydenRows:
+    """K :class:`DrydenWind` fields evaluated together: each field's current chunk of samples is
+    copied into one (K, _CHUNK + 1, 3) array when the field moves to another chunk or restarts
+    (every 2.56 s of simulated time at the default grid), so a step is a few array operations
+    instead of K Python calls. The values are the fields' own (:meth:`DrydenWind._velocity`)."""
+
+    def __init__(self, fields: "list[DrydenWind]") -> None:
+        self.fields = fields
+        k = len(fields)
+        n = DrydenWind._CHUNK
+        self._n = n
+        self._samples = np.zeros((k, n + 1, 3))
+        self._chunk = np.full(k, -1, dtype=np.int64)
+        self._generation = np.full(k, -1, dtype=np.int64)
+        self._dt = np.array([f.sample_dt for f in fields], dtype=float)
+        self._axes = np.array([f._axes for f in fields], dtype=float).reshape(k, 3, 3)
+        self._mean = np.array([f.mean_speed * f.direction if f.include_mean else np.zeros(3) for f in fields],
+                              dtype=float).reshape(k, 3)
+        self._rows = np.arange(k)
+
+    def __call__(self, times: np.ndarray) -> np.ndarray:
+        """(K, 3) wind velocity [m/s] of field ``j`` at ``times[j]`` (>= 0)."""
+        t = np.asarray(times, dtype=float)
+        if (t < 0).any():
+            raise ValueError(f"DrydenWind: t must be >= 0, got {t.min()!r}")
+        k = t / self._dt
+        i = k.astype(np.int64)
+        frac = (k - i)[:, None]
+        c, j = np.divmod(i, self._n)
+        gen = np.fromiter((f._generation for f in self.fields), dtype=np.int64, count=len(self.fields))
+        for r in np.flatnonzero((c != self._chunk) | (gen != self._generation)).tolist():
+            f = self.fields[r]
+            self._samples[r] = f.chunk(int(c[r]))
+            self._chunk[r], self._generation[r] = c[r], f._generation
+        turb = (1.0 - frac) * self._samples[self._rows, j] + frac * self._samples[self._rows, j + 1]
+        return np.einsum("kij,kj->ki", self._axes, turb) + self._mean
+
+
 class WindBatch:
     """K wind fields evaluated together, field ``j`` at its own time and position - what a batch of
     simulated drones needs once per control step. Built once per set of fields: the paper's gusts
     (the common case) are evaluated in one compiled call (the operations and ``sin`` of
-    :meth:`GustWind.speed`), every other field on its own; the built-in fields skip the input
-    validation of ``__call__`` (the simulator's positions are finite float arrays and their outputs
-    are), user callables keep it. Each value is exactly ``fields[j](times[j], positions[j:j+1])[0]``.
+    :meth:`GustWind.speed`), Dryden turbulence as one array operation over its fields' sampled
+    processes (:class:`_DrydenRows`), every other field on its own; the built-in fields skip the
+    input validation of ``__call__`` (the simulator's positions are finite float arrays and their
+    outputs are), user callables keep it. Each value is ``fields[j](times[j], positions[j:j+1])[0]``
+    (exactly for all but Dryden, whose axis rotation may round differently in its last bit).
     """
 
     def __init__(self, fields: "list[WindField]") -> None:
         self.fields = list(fields)
         self._gusts = np.array([j for j, f in enumerate(self.fields) if type(f) is GustWind], dtype=np.int64)
-        self._others = [j for j, f in enumerate(self.fields) if type(f) is not GustWind]
+        self._dryden = np.array([j for j, f in enumerate(self.fields) if type(f) is DrydenWind], dtype=np.int64)
+        self._dryden_rows = _DrydenRows([self.fields[j] for j in self._dryden])
+        self._others = [j for j, f in enumerate(self.fields) if type(f) not in (GustWind, DrydenWind)]
         g = [self.fields[j] for j in self._gusts]
         params = np.array([(f.mean_speed, f.amplitude, f.period, f.phase) for f in g], dtype=float)
         self._cols = params.reshape(-1, 4).T.copy()     # one contiguous row per parameter
@@ -513,6 +562,8 @@ class WindBatch:
             self._t[:] = np.asarray(times, dtype=float)[self._gusts]
             fn(k, *cols, t_ptr, out_ptr)
             out[self._gusts] = self._speeds[:, None] * self._dirs
+        if len(self._dryden):
+            out[self._dryden] = self._dryden_rows(np.asarray(times, dtype=float)[self._dryden])
         for j in self._others:
             f = self.fields[j]
             t, pos = float(times[j]), positions[j:j + 1]

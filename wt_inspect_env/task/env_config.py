@@ -159,7 +159,9 @@ class EnvConfig:
         a = :data:`~wt_inspect_env.planner.config.CLEARANCE_BRAKE` (4.9 m/s at the paper's 7 m / 3 m);
         ``None``: no approach (the first pose is the target from the start).
     safety_margin: SM band [m]. camera_hz: coverage frames per second (a real inspection camera
-        shoots a few frames per second; 10 Hz keeps the env fast). ctrl_hz / physics_hz: command and
+        shoots a few frames per second; 10 Hz keeps the env fast); 0: no frames at all - coverage and
+        its reward stay 0, redundancy is undefined (NaN) - for training on a reward that ignores coverage,
+        where the frames are a fifth of a step's time. ctrl_hz / physics_hz: command and
         physics rates. integrator: ``"compiled"`` (free flight in the compiled flight core, PyBullet
         near contacts) or ``"bullet"`` (PyBullet integrates every sub-step; the reference).
         time_limit_s: truncation time (default: 1.5 x the nominal mission time + 30 s).
@@ -337,7 +339,7 @@ class EnvConfig:
                 raise ValueError(f"{name} must be a non-negative integer, got {v!r}")
         check_positive("ctrl_hz", self.ctrl_hz)
         check_positive("physics_hz", self.physics_hz)
-        check_positive("camera_hz", self.camera_hz)
+        check_positive("camera_hz", self.camera_hz, allow_zero=True)
         if self.camera_hz > self.ctrl_hz:
             raise ValueError(f"camera_hz must not exceed ctrl_hz ({self.ctrl_hz}), got {self.camera_hz!r}")
         if self.time_limit_s is not None:

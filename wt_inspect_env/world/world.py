@@ -118,7 +118,8 @@ class InspectionWorld:
         self._lo, self._hi = self.scaling.lower, self.scaling.upper
         self.hover_action = self.scaling.hover_action()
         self.dt = 1.0 / cfg.ctrl_hz
-        self.camera_every = max(1, int(round(cfg.ctrl_hz / cfg.camera_hz)))
+        # control steps between coverage frames; 0: no frames (camera_hz = 0)
+        self.camera_every = max(1, int(round(cfg.ctrl_hz / cfg.camera_hz))) if cfg.camera_hz > 0 else 0
         self.mission: Mission = build_mission(cfg)
         mission = self.mission
         self.winds: list[WindField] = list(winds) if winds is not None else [make_wind(cfg.wind) for _ in range(n)]
@@ -222,7 +223,10 @@ class InspectionWorld:
         idx = np.asarray(idx, dtype=np.int64)
         for i in idx.tolist():
             self._reset_drone(i)
-        self._frames(idx)
+        if self.camera_every:
+            self._frames(idx)
+        else:
+            self.last_new[idx], self.last_visible[idx] = 0, 0
         s, st = self.reference.sample, self._reset_state
         self.metrics_acc.add(idx, np.zeros(len(idx)), st[idx, 0:3], st[idx, 6:10], s.point[idx], s.normal[idx],
                              np.zeros(len(idx), dtype=bool), self.last_new[idx], self.last_visible[idx],
@@ -432,7 +436,7 @@ class InspectionWorld:
         new = buf["n_new"]
         new[:] = 0
         finite = buf["finite"]
-        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0))
+        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0)) if self.camera_every else ()
         if len(shoot):
             new[shoot] = self._frames(shoot)
         buf["actions"][:] = actions
@@ -479,7 +483,7 @@ class InspectionWorld:
             self.set_phase(i, int(self.phase_index[i]) + 1)
         self.last_visible[:] = 0
         new = np.zeros(n, dtype=np.int64)
-        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0))
+        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0)) if self.camera_every else ()
         if len(shoot):
             new[shoot] = self._frames(shoot)
         collision = self.sim.in_collision.copy()

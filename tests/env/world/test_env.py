@@ -200,6 +200,35 @@ def test_coverage_grows_while_facing_the_surface_and_counts_new_triangles_once()
     env.close()
 
 
+def test_without_camera_frames_the_flight_is_the_same_and_coverage_stays_zero():
+    """camera_hz = 0 drops the coverage frames (a fifth of a training step's time): the flight,
+    every reward term but coverage and the frame-free metrics stay what they are with frames."""
+    def fly(**kw):
+        env = make(wind={"type": "gust", "mean_speed": 4.0}, **kw)
+        env.reset(seed=3)
+        u, rows = env.unwrapped, []
+        for k in range(60):
+            a = u.scaling.hover_action() + 0.05 * np.sin(0.2 * k)
+            obs, r, _, _, info = env.step(a.astype(np.float32))
+            rows.append((obs["position"].copy(), r - info["reward_terms"]["coverage"], info["coverage"],
+                         info["metrics"]["safety_sm"], info["metrics"]["redundancy"]))
+        env.close()
+        return rows
+
+    framed, blind = fly(), fly(camera_hz=0.0)
+    assert framed[-1][2] > 0.0 and framed[-1][4] > 0.0
+    for (x, r, _, sm, _), (x0, r0, cov0, sm0, red0) in zip(framed, blind):
+        np.testing.assert_array_equal(x0, x)
+        assert r0 == pytest.approx(r, rel=1e-12, abs=1e-12) and sm0 == sm
+        assert cov0 == 0.0 and np.isnan(red0)      # nothing seen: redundancy undefined
+    env = make(camera_hz=0.0)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="camera_hz"):
+        env.unwrapped.replay_coverage(np.zeros((3, 3)), np.tile([0.0, 0.0, 0.0, 1.0], (3, 1)), np.ones(3),
+                                      np.zeros(3, dtype=bool))
+    env.close()
+
+
 def test_phase_change_swaps_geometry_and_keeps_coverage():
     env = gym.make("WindTurbineInspection-v0", wind="none")
     env.reset(seed=0)
@@ -235,6 +264,7 @@ def test_bad_actions_raise_naming_the_action(bad):
     (dict(wind={"type": "gust", "mean_speed": float("nan")}), "mean_speed"),
     (dict(drone="ingenuity"), "drone preset"),
     (dict(standoff=0.0), "standoff"),
+    (dict(camera_hz=-1.0), "camera_hz"),
     (dict(turbine={"blade_length": -3}), "blade_length"),
     (dict(start_progress=1.0), "start_progress"),
     (dict(pose_error_limit=0.0), "pose_error_limit"),
