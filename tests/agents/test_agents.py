@@ -297,15 +297,19 @@ def test_episode_variants_draw_reproducibly_by_weight_and_check_spaces():
 
 
 # ----------------------------------------------------------------------------------------- recipes
-def test_the_second_stage_recipe_can_resume_its_base_models():
-    """ppo_full_many_robust.json fine-tunes ppo_full_many.json's models (results/reproduce.toml):
+@pytest.mark.parametrize("base_name, stage_name", [("ppo_full_many.json", "ppo_full_many_robust.json"),
+                                                    ("ppo_full_many_robust.json", "ppo_full_many_wind.json")])
+def test_a_stage_recipe_can_resume_its_base_models(base_name, stage_name):
+    """Each later stage fine-tunes the models of the stage before it (results/reproduce.toml):
     ``--resume`` refuses a recipe whose agent spec (features, action, repeat) differs from the
-    checkpoint's, and the stage must not silently change the network either."""
+    checkpoint's, the stage must not silently change the network either, and it trains no faster
+    than its base; its periodic evaluation must still count coverage (the training env may not)."""
     from agents.recipe import RECIPE_DIR
-    base, stage = load_recipe(RECIPE_DIR / "ppo_full_many.json"), load_recipe(RECIPE_DIR / "ppo_full_many_robust.json")
+    base, stage = load_recipe(RECIPE_DIR / base_name), load_recipe(RECIPE_DIR / stage_name)
     assert stage.spec == base.spec
     assert stage.policy_kwargs == base.policy_kwargs
-    assert stage.algo_kwargs["learning_rate"] < base.algo_kwargs["learning_rate"]
+    assert stage.algo_kwargs["learning_rate"] <= base.algo_kwargs["learning_rate"]
+    assert stage.eval_env_options().get("camera_hz", 10.0) > 0
 
 
 def test_shipped_recipes_load_and_bad_keys_list_valid_ones(tmp_path):
