@@ -38,7 +38,8 @@ anew on the next draw and all its drones reset. ``info["turbine"]`` (a dict of p
 kind, scale, sizes, rotor azimuth) and ``info["turbine_draw"]`` (the world's draw number) tell the
 turbine of each returned observation's episode; ``info["final_info"]["turbine"]`` that of an
 ended one. The worlds are planned at the first ``reset`` (and again at a seeded reset whose draws
-differ); ``worlds`` holds them, ``world``, ``sim`` and ``mission`` are None.
+differ); ``worlds`` holds them, and ``world``, ``sim``, ``mission``, ``n_triangles`` and ``time_limit``
+(the single world's) raise an AttributeError that says so.
 
 Autoreset: ``AutoresetMode.SAME_STEP`` (in ``metadata["autoreset_mode"]``) - a drone whose
 episode ends is reset inside the same ``step``; the returned observation is the first of its new
@@ -175,17 +176,14 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self._flown = np.zeros(g, dtype=np.int64)                # ... control steps flown since its draw
         self._turbine_rngs: list[np.random.Generator | None] = [None] * g
         if self.turbines is None:
-            self.world = world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
+            world = InspectionWorld(cfg, n, winds=self.winds, hooks=hooks)
             self.worlds, self._hooks = [world], world.hooks
             self.winds = world.winds
-            self.sim, self.mission, self.params, self.scaling = world.sim, world.mission, world.params, world.scaling
+            self.params, self.scaling = world.params, world.scaling
             self.dt, self.camera = world.dt, world.camera
-            self.n_triangles, self.time_limit = world.n_triangles, world.time_limit
         else:   # the worlds are planned at the first reset, on the reset seed's turbines
-            self.world = self.sim = self.mission = None
             self.params, self.scaling = cfg.drone, ActionScaling.from_params(cfg.drone)
             self.dt, self.camera = 1.0 / cfg.ctrl_hz, GimbalCamera(cfg.camera)
-            self.n_triangles = self.time_limit = None
         # redraw_after_s in control steps (a world's flown time is counted in steps)
         self._redraw_steps = None if self.redraw_after_s is None else math.ceil(self.redraw_after_s / self.dt - 1e-9)
         self.single_action_space = gym.spaces.Box(-1.0, 1.0, shape=(4,), dtype=np.float32)
@@ -195,6 +193,41 @@ class WindTurbineInspectionVectorEnv(VectorEnv):
         self._seeded = False
         self._started = False
         self.closed = False
+
+    def _the_world(self, name: str) -> InspectionWorld:
+        """The one world of a single-turbine env; an AttributeError naming ``name`` and what to use
+        instead for a many-turbine one (each of its worlds has its own turbine, mission and size)."""
+        if self.turbines is not None:
+            raise AttributeError(f"{name!r}: a many-turbine vector env flies one world per turbine, each with its own "
+                                 f"{name}; use .worlds[k].{name} (world k flies drones k * drones_per_world onwards)"
+                                 if name != "world" else
+                                 "'world': a many-turbine vector env flies one world per turbine; use .worlds[k]")
+        return self.worlds[0]
+
+    @property
+    def world(self) -> InspectionWorld:
+        """The world of a single-turbine env (a many-turbine one has :attr:`worlds`)."""
+        return self._the_world("world")
+
+    @property
+    def sim(self) -> Any:
+        """The batched simulator of a single-turbine env's world."""
+        return self._the_world("sim").sim
+
+    @property
+    def mission(self) -> Any:
+        """The mission of a single-turbine env's world."""
+        return self._the_world("mission").mission
+
+    @property
+    def n_triangles(self) -> int:
+        """Blade triangles of a single-turbine env's mission (the coverage denominator)."""
+        return self._the_world("n_triangles").n_triangles
+
+    @property
+    def time_limit(self) -> float:
+        """The truncation time [s] of a single-turbine env's missions."""
+        return self._the_world("time_limit").time_limit
 
     @property
     def hooks(self) -> TaskHooks:

@@ -235,3 +235,26 @@ def test_many_turbine_kwargs_validate_plain_data():
     assert many_turbine_kwargs({"n_turbines": 1, "redraw_after_s": 200})["redraw_after_s"] == 200.0
     with pytest.raises(ValueError, match=r"either redraw_every .* or redraw_after_s"):
         many_turbine_kwargs({"n_turbines": 1, "redraw_every": 2, "redraw_after_s": 200})
+
+
+def test_the_single_world_attributes_name_the_per_world_ones_on_a_many_turbine_env():
+    """``world``, ``sim``, ``mission``, ``n_triangles`` and ``time_limit`` belong to one turbine:
+    a many-turbine env's raise an AttributeError that points at ``worlds[k]`` (getattr with a
+    default still works), a single-turbine env's are its one world's."""
+    venv = _venv(2, 2)
+    try:
+        venv.reset(seed=0)
+        for name in ("world", "sim", "mission", "n_triangles", "time_limit"):
+            with pytest.raises(AttributeError, match=r"worlds\[k\]"):
+                getattr(venv, name)
+            assert getattr(venv, name, None) is None
+        assert venv.worlds[1].n_triangles > 0
+    finally:
+        venv.close()
+    single = WindTurbineInspectionVectorEnv(num_envs=2)
+    try:
+        assert single.world is single.worlds[0] and single.sim is single.worlds[0].sim
+        assert single.mission is single.worlds[0].mission
+        assert single.n_triangles == single.worlds[0].n_triangles > 0 and single.time_limit > 0
+    finally:
+        single.close()
