@@ -32,7 +32,7 @@ UPDATE_STATISTICS = ("approx_kl", "clip_fraction", "value_loss", "policy_gradien
 def _vector_env(venv):
     """The native vector env under SB3's wrappers (VecNormalize) and the agent interface."""
     inner = venv
-    while not hasattr(inner, "world"):
+    while not hasattr(inner, "worlds"):
         inner = inner.venv
     return inner
 
