@@ -436,9 +436,7 @@ class InspectionWorld:
         new = buf["n_new"]
         new[:] = 0
         finite = buf["finite"]
-        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0)) if self.camera_every else ()
-        if len(shoot):
-            new[shoot] = self._frames(shoot)
+        self._frames_due(finite, new)
         buf["actions"][:] = actions
         lib.wt_world_finish(wp)
         obs = observation_dict(buf["obs"].copy())
@@ -483,9 +481,7 @@ class InspectionWorld:
             self.set_phase(i, int(self.phase_index[i]) + 1)
         self.last_visible[:] = 0
         new = np.zeros(n, dtype=np.int64)
-        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0)) if self.camera_every else ()
-        if len(shoot):
-            new[shoot] = self._frames(shoot)
+        self._frames_due(finite, new)
         collision = self.sim.in_collision.copy()
         t = self.sim.time
         fi = np.flatnonzero(finite)
@@ -561,6 +557,15 @@ class InspectionWorld:
                     obs[k][i] = v
 
     # ------------------------------------------------------------------ camera
+    def _frames_due(self, finite: np.ndarray, new: np.ndarray) -> None:
+        """The camera frames of this step (both step paths): every ``camera_every``-th step for the
+        drones with a finite state (none with ``camera_hz`` 0); their newly seen counts into ``new``."""
+        if not self.camera_every:
+            return
+        shoot = np.flatnonzero(finite & (self.steps % self.camera_every == 0))
+        if len(shoot):
+            new[shoot] = self._frames(shoot)
+
     def _frames(self, idx: np.ndarray) -> np.ndarray:
         """One camera frame for each drone in ``idx``: culling for all at once, one batched ray test
         per turbine geometry. Returns the newly seen triangle counts (also in ``last_new``)."""
