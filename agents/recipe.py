@@ -200,16 +200,50 @@ class Recipe:
         return cls(**dict(data))
 
 
-def load_recipe(path: str | Path) -> Recipe:
-    """Read a recipe file (ValueError naming the file if it is missing or not valid JSON)."""
-    p = Path(path)
+def _merge(base: Mapping[str, Any], over: Mapping[str, Any]) -> dict[str, Any]:
+    """``over`` on top of ``base``: objects merge key by key (recursively), anything else - a list,
+    a number, null - replaces the base's value whole."""
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
+def _read_recipe_data(p: Path, chain: tuple[Path, ...]) -> dict[str, Any]:
+    """The JSON object of recipe file ``p`` with its ``base`` (if any) resolved."""
     if not p.is_file():
-        raise ValueError(f"recipe file {str(p)!r} not found")
+        where = f" (the base of {str(chain[-1])!r})" if chain else ""
+        raise ValueError(f"recipe file {str(p)!r}{where} not found")
     try:
         data = json.loads(p.read_text())
     except json.JSONDecodeError as exc:
         raise ValueError(f"recipe file {str(p)!r} is not valid JSON: {exc}") from None
-    return Recipe.from_dict(data)
+    if not isinstance(data, dict):
+        raise ValueError(f"recipe file {str(p)!r} must hold a JSON object, got {type(data).__name__}")
+    if "base" not in data:
+        return data
+    base = data.pop("base")
+    if not isinstance(base, str) or not base:
+        raise ValueError(f"recipe file {str(p)!r}: base must be the file name of another recipe, got {base!r}")
+    base_path = (p.parent / base).resolve()
+    if base_path in chain or base_path == p.resolve():
+        raise ValueError(f"recipe file {str(p)!r}: base {base!r} leads back to itself "
+                         f"({' -> '.join(c.name for c in (*chain, p, base_path))})")
+    return _merge(_read_recipe_data(base_path, (*chain, p.resolve())), data)
+
+
+def load_recipe(path: str | Path) -> Recipe:
+    """Read a recipe file (ValueError naming the file if it is missing or not valid JSON).
+
+    A recipe may name another as its ``base`` (a path relative to its own folder): its keys then
+    override the base's - objects key by key, lists and values whole - so a training stage states
+    only what it changes. The result is the complete recipe, as if written out in full (models,
+    sidecars and digests record that, never the ``base`` key).
+    """
+    return Recipe.from_dict(_read_recipe_data(Path(path), ()))
 
 
 def default_recipe_path(algo: str) -> Path:

@@ -298,7 +298,8 @@ def test_episode_variants_draw_reproducibly_by_weight_and_check_spaces():
 
 # ----------------------------------------------------------------------------------------- recipes
 @pytest.mark.parametrize("base_name, stage_name", [("ppo_full_many.json", "ppo_full_many_robust.json"),
-                                                    ("ppo_full_many_robust.json", "ppo_full_many_wind.json")])
+                                                    ("ppo_full_many_robust.json", "ppo_full_many_wind.json"),
+                                                    ("ppo_full_many_wind.json", "ppo_full_many_turbulence.json")])
 def test_a_stage_recipe_can_resume_its_base_models(base_name, stage_name):
     """Each later stage fine-tunes the models of the stage before it (results/reproduce.toml):
     ``--resume`` refuses a recipe whose agent spec (features, action, repeat) differs from the
