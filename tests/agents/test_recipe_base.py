@@ -15,16 +15,23 @@ def _write(path: Path, data: dict) -> Path:
     return path
 
 
-def test_the_wind_stage_written_as_a_diff_is_the_recipe_its_committed_runs_trained_with():
-    """agents/recipes/ppo_full_many_wind.json names its base; every committed seed of its study recorded
-    the complete recipe it trained with, and the diff must resolve to that, key for key and in order
-    (so the runs' sidecars and digests do not change)."""
-    recorded = sorted((ROOT / "results/training/ppo_full_many_wind_seeds").glob("seed_*/recipe.json"))
-    assert recorded, "the study's committed recipe.json files are missing"
-    resolved = load_recipe(RECIPE_DIR / "ppo_full_many_wind.json").to_dict()
-    assert "base" in json.loads((RECIPE_DIR / "ppo_full_many_wind.json").read_text())
+@pytest.mark.parametrize("recipe, runs", [
+    ("ppo_full_scratch_near.json", "ppo_full_scratch_near_seeds"),
+    ("ppo_full_scratch_ff.json", "ppo_full_scratch_ff_seeds"),
+    ("ppo_full_many.json", "ppo_full_many_seeds"),
+    ("ppo_full_many_robust.json", "ppo_full_many_robust_seeds"),
+    ("ppo_full_many_wind.json", "ppo_full_many_wind_seeds"),
+])
+def test_a_stage_written_as_a_diff_is_the_recipe_its_committed_runs_trained_with(recipe, runs):
+    """These recipes name their base; every committed seed of their study recorded the complete
+    recipe it trained with, and the diff must resolve to that, key for key and in order (so the
+    runs' sidecars and digests do not change)."""
+    recorded = sorted((ROOT / "results/training" / runs).glob("seed_*/recipe.json"))
+    assert len(recorded) == 5, f"the study's committed recipe.json files are missing: {recorded}"
+    assert "base" in json.loads((RECIPE_DIR / recipe).read_text())
+    resolved = json.dumps(load_recipe(RECIPE_DIR / recipe).to_dict(), indent=1)
     for path in recorded:
-        assert json.dumps(resolved, indent=1) == json.dumps(json.loads(path.read_text()), indent=1), path
+        assert resolved == json.dumps(json.loads(path.read_text()), indent=1), path
 
 
 def test_objects_merge_key_by_key_and_lists_and_values_replace_whole(tmp_path):
