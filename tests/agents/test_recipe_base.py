@@ -62,7 +62,8 @@ def test_every_stage_recipe_is_checked_like_a_full_one(tmp_path):
 
 @pytest.mark.parametrize("files, match", [
     ({"a.json": {"base": "missing.json"}}, r"missing\.json.*the base of .*a\.json.*not found"),
-    ({"a.json": {"base": "b.json"}, "b.json": {"base": "a.json"}}, r"leads back to itself \(a\.json -> b\.json -> a\.json\)"),
+    ({"a.json": {"base": "b.json"}, "b.json": {"base": "a.json"}},
+     r"leads back to itself \(a\.json -> b\.json -> a\.json\)"),
     ({"a.json": {"base": "a.json"}}, r"leads back to itself"),
     ({"a.json": {"base": 3}}, r"base must be the file name of another recipe, got 3"),
     ({"a.json": {"base": "b.json"}, "b.json": [1, 2]}, r"b\.json.*must hold a JSON object, got list"),
