@@ -7,7 +7,8 @@ covered by the layering test and run from any directory::
     wt-inspect study sm-vs-wind   --results results        # results/paper_faithful_wind/sm_vs_wind.{csv,png}
     wt-inspect study wind-offset  --out results/lab/wind_offset.csv
     wt-inspect study routes       RUNS_ROOT --out routes   # routes/routes.{json,png}, from runs not committed
-    wt-inspect study hold-check   --seconds 12             # printed; quoted in results/imitation/dagger
+    wt-inspect study hold-check   --seconds 12             # printed; part of the imitation study
+    wt-inspect study imitation    --out results/imitation/dagger --rounds 3
     wt-inspect study safety-filter --starts 1000 --out results/safety_filter
     wt-inspect study pose-sweep   --turbine paper --out results/pose_sweep/paper --jobs 2
     wt-inspect study planner-clearance --turbines 1000 --out results/planner_clearance --jobs 2
@@ -18,6 +19,7 @@ covered by the layering test and run from any directory::
 * :mod:`.wind_offset` - the lab drone's steady stand-off error against the wind's drag;
 * :mod:`.routes` - every training route to a full-mission policy on one time axis;
 * :mod:`.hold_check` - VT-NMPC+ with its decisions held like the DAgger learner's;
+* :mod:`.imitation` - demonstrations, behaviour cloning and DAgger of VT-NMPC+ from nothing, and why it does not fly;
 * :mod:`.safety_filter` - the safety filter against policies that fly at the structure;
 * :mod:`.pose_sweep` - whole missions over a grid of rotor azimuths and nacelle facings;
 * :mod:`.planner_clearance` - the planner's stand-off path against d_min on drawn turbines.
@@ -32,6 +34,7 @@ STUDIES: dict[str, tuple[str, str]] = {
     "wind-offset": ("wt_inspect.studies.wind_offset", "lab drone: steady stand-off error against the drag"),
     "routes": ("wt_inspect.studies.routes", "training routes to a full-mission policy, one figure"),
     "hold-check": ("wt_inspect.studies.hold_check", "VT-NMPC+ with decisions held at 25 Hz like DAgger's"),
+    "imitation": ("wt_inspect.studies.imitation", "DAgger of VT-NMPC+ from nothing, labels and hold check"),
     "safety-filter": ("wt_inspect.studies.safety_filter", "the safety filter against adversarial policies"),
     "pose-sweep": ("wt_inspect.studies.pose_sweep", "whole missions over rotor azimuth x nacelle facing"),
     "planner-clearance": ("wt_inspect.studies.planner_clearance", "planned paths vs d_min (no flight)"),

@@ -1,0 +1,69 @@
+"""``wt-inspect study imitation``: demonstrations, DAgger and the analysis in one resumable command."""
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+pytest.importorskip("minari")
+
+from agents.recipe import RECIPE_DIR, Recipe, load_recipe  # noqa: E402
+from wt_inspect.demonstrations import DemoConfig  # noqa: E402
+from wt_inspect.studies import imitation  # noqa: E402
+
+
+def test_label_stats_count_the_spread_and_the_saturated_share():
+    Y = np.array([[1.0, 0.0, -1.0, 0.5], [-1.0, 0.0, 0.2, 0.5], [0.0, 0.0, 0.9985, 0.5], [0.0, 0.0, 0.0, 0.5]])
+    s = imitation.label_stats(Y)
+    assert s["samples"] == 4
+    assert s["saturated_share"] == [0.5, 0.0, 0.25, 0.0]      # 0.9985 is not at the bound, -1 is
+    assert s["label_std"][1] == 0.0 and s["label_std"][3] == 0.0
+    assert s["label_std"][0] == pytest.approx(np.sqrt(0.5), abs=1e-4)
+    assert imitation.label_stats(np.zeros((0, 4)))["samples"] == 0
+
+
+def _tiny_recipe() -> Recipe:
+    d = load_recipe(RECIPE_DIR / "dagger_full.json").to_dict()
+    d["env"]["time_limit_s"] = 0.4
+    d["eval_env"]["time_limit_s"] = 0.3
+    d["policy_kwargs"]["net_arch"] = {"pi": [8], "vf": [8]}
+    return Recipe.from_dict(d)
+
+
+@pytest.mark.slow
+def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tmp_path):
+    demos = DemoConfig(winds=[{"type": "gust", "mean_speed": 4.0}], episodes=2, time_limit_s=0.4, full_missions=0)
+    kw = dict(rounds=1, episodes_per_round=1, demo_config=demos, recipe=_tiny_recipe(), hold_seconds=0.2,
+              progress=False, command="wt-inspect study imitation --out X --rounds 1")
+    a = imitation.run_study(tmp_path, **kw)
+    labels = a["labels (agent actions [p, q, r, thrust] in [-1, 1])"]
+    assert list(labels) == ["demonstrations", "dagger round 1 (beta 0.5)"]
+    for s in labels.values():
+        assert s["samples"] > 0 and all(0.0 <= x <= 1.0 for x in s["saturated_share"])
+    md = (tmp_path / "results.md").read_text()
+    assert "| 0 (behaviour cloning) |" in md and "| 1 | 0.5 |" in md and "`wt-inspect study imitation --out X" in md
+    assert json.loads((tmp_path / "analysis.json").read_text()) == json.loads(json.dumps(a))
+    assert (tmp_path / "summary.json").is_file() and (tmp_path / "learning_curve.png").is_file()
+    # a rerun with one more round reuses the demonstrations and the finished round
+    stamp = (tmp_path / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json").stat().st_mtime_ns
+    a2 = imitation.run_study(tmp_path, **{**kw, "rounds": 2})
+    assert list(a2["labels (agent actions [p, q, r, thrust] in [-1, 1])"])[1:] == [
+        "dagger round 1 (beta 0.5)", "dagger round 2 (beta 0.25)"]
+    assert a2["labels (agent actions [p, q, r, thrust] in [-1, 1])"]["dagger round 1 (beta 0.5)"] == \
+        labels["dagger round 1 (beta 0.5)"]
+    assert (tmp_path / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json").stat().st_mtime_ns == stamp
+    with pytest.raises(ValueError, match="demonstrations of another configuration"):
+        imitation.run_study(tmp_path, **{**kw, "demo_config": DemoConfig(**{**demos.__dict__, "episodes": 3})})
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--out", "{tmp}", "--demo-config", "{nope"], "--demo-config is not valid JSON"),
+    (["--out", "{tmp}", "--demo-config", '{"episods": 2}'], "episods"),
+    (["--out", "{tmp}", "--hold-seconds", "0"], "--hold-seconds must be positive"),
+])
+def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, match):
+    argv = [a.replace("{tmp}", str(tmp_path / "o")) for a in argv]
+    assert imitation.main(argv) == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "o" / "results.md").exists()

@@ -1,0 +1,201 @@
+"""DAgger of VT-NMPC+ on the full mission from nothing, and why it does not fly (``results/imitation/dagger``).
+
+One command records the demonstrations, runs behaviour cloning and a fixed number of DAgger rounds,
+and explains the outcome::
+
+    wt-inspect study imitation --out results/imitation/dagger --rounds 3
+
+1. Demonstrations (:func:`wt_inspect.demonstrations.record_demonstrations`, the default
+   :class:`~wt_inspect.demonstrations.DemoConfig` unless ``--demo-config`` says otherwise) into
+   ``OUT/demos/``; an existing dataset is reused only when its recorded configuration is the requested one.
+2. DAgger (:func:`agents.dagger.dagger`, recipe ``agents/recipes/dagger_full.json``) into ``OUT/run/``
+   for ``--rounds`` rounds and no wall-clock budget, so that the study is the same on every machine
+   however fast (the budget of a training run, ``--max-minutes``, makes its length depend on the
+   machine); a rerun resumes after the last finished round.
+3. The labels by source (``analysis.json``): the spread of the expert's labels and the share at the
+   action bounds, in the demonstrations and in each round's learner-visited states - where the
+   learner drifts, the expert answers with saturated recovery commands that the network fits
+   neither with nor without the nominal flight.
+4. The hold check (:mod:`wt_inspect.studies.hold_check`): VT-NMPC+ flying its own decisions held
+   like the learner's, so that the decision rate is ruled in or out as the cause.
+
+``OUT/results.md`` gives all of it with the command; the dataset, the models and the aggregated
+data stay in ``OUT/demos`` and ``OUT/run`` (large; not committed).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+DATASET = "vtnmpc-plus-full-v0"
+#: a label component at least this close to +-1 counts as saturated (the action bounds)
+SATURATED = 0.999
+#: the default length of the hold check [s]
+HOLD_SECONDS = 12.0
+
+
+def label_stats(Y: np.ndarray) -> dict[str, Any]:
+    """Samples, per-component standard deviation and share at the bounds of labels ``Y`` (n, 4)."""
+    Y = np.asarray(Y, dtype=np.float64).reshape(-1, 4)
+    if len(Y) == 0:
+        return {"samples": 0, "label_std": [None] * 4, "saturated_share": [None] * 4}
+    return {"samples": int(len(Y)), "label_std": [round(float(s), 4) for s in Y.std(axis=0)],
+            "saturated_share": [round(float(s), 4) for s in (np.abs(Y) >= SATURATED).mean(axis=0)]}
+
+
+def labels_by_source(run: Path) -> dict[str, dict[str, Any]]:
+    """:func:`label_stats` of the demonstrations and of each DAgger round's new labels, from the
+    run's cached arrays (``demo_features.npz``, ``dagger_data.npz``) and its per-round sample counts
+    (``evaluations.json``: ``samples_dagger`` is cumulative)."""
+    out: dict[str, dict[str, Any]] = {}
+    with np.load(run / "demo_features.npz") as z:
+        out["demonstrations"] = label_stats(z["Y"])
+    evaluations = json.loads((run / "evaluations.json").read_text())
+    agg = run / "dagger_data.npz"
+    if not agg.is_file():
+        return out
+    with np.load(agg) as z:
+        Ya = z["Y"]
+    before = 0
+    for e in evaluations[1:]:
+        n = int(e.get("samples_dagger") or 0)
+        out[f"dagger round {e['round']} (beta {e['beta']:g})"] = label_stats(Ya[before:n])
+        before = n
+    return out
+
+
+def _demo_config(text: str | None):
+    from wt_inspect.demonstrations import DemoConfig
+    if text is None:
+        return DemoConfig()
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"--demo-config is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"--demo-config must be a JSON object of DemoConfig fields, got {text!r}")
+    from wt_inspect_env.util.validation import check_unknown_options
+    check_unknown_options("--demo-config", data.keys(), [f.name for f in dataclasses.fields(DemoConfig)])
+    return DemoConfig(**data)
+
+
+def ensure_demonstrations(out: Path, cfg: Any, progress: bool) -> Path:
+    """The dataset of ``cfg`` in ``out/demos`` (recorded unless already there with this configuration)."""
+    from wt_inspect.demonstrations import record_demonstrations
+    path = out / "demos" / "wt-inspect" / DATASET
+    wanted = json.loads(json.dumps({**cfg.__dict__, "winds": list(cfg.winds)}))
+    meta = path / "wt_inspect_demos.json"
+    if meta.is_file():
+        have = json.loads(meta.read_text()).get("config")
+        if have != wanted:
+            raise ValueError(f"{str(path)!r} holds demonstrations of another configuration ({have!r}); "
+                             "remove it or use another --out")
+        return path
+    record_demonstrations(cfg, out / "demos", DATASET, progress=progress)
+    return path
+
+
+def _pct(x: Any) -> str:
+    return "-" if x is None else f"{100 * float(x):.1f} %"
+
+
+def markdown(summary: Mapping[str, Any], labels: Mapping[str, Mapping[str, Any]], hold: Mapping[Any, Any],
+             demos: Mapping[str, Any], command: str, hold_seconds: float) -> str:
+    """results.md of the study (see the module docstring)."""
+    cfg = summary["config"]
+    lines = [f"# DAgger of {cfg['expert']} on the full mission", "", f"`{command}`", "",
+             f"Demonstrations: {demos.get('total_episodes', '?')} episodes, {demos.get('steps', 0):,} control steps, "
+             f"{summary['samples_demonstrations']:,} labelled states (configuration in "
+             f"`demos/wt-inspect/{DATASET}/wt_inspect_demos.json`, not committed: "
+             f"`{json.dumps(demos.get('config', {}))}`). DAgger: recipe `agents/recipes/dagger_full.json`, "
+             f"{cfg['rounds']} round(s) of {cfg['episodes_per_round']} rollout(s), the expert's share beta "
+             f"{cfg['beta0']:g} in round 1 and x{cfg['beta_decay']:g} per round after, no wall-clock budget. Each "
+             "round is evaluated on the recipe's evaluation mission (one deterministic episode).", "",
+             "| round | beta | env steps | labelled states | coverage | SM | CM | flight | end |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
+    for r in summary["per_round"]:
+        name = "0 (behaviour cloning)" if r["round"] == 0 else str(r["round"])
+        lines.append(f"| {name} | {r['beta']:g} | {r['env_steps']:,} | {int(r.get('samples_dagger') or 0):,} | "
+                     f"{_pct(r['coverage'])} | {_pct(r['safety_sm'])} | {_pct(r['centering_cm'])} | "
+                     f"{r['flight_time_s']:.1f} s | {r['termination'] or 'complete'} |")
+    lines += ["", "The expert's labels (agent actions [p, q, r, thrust] in [-1, 1]) by where they were asked:", "",
+              "| source | samples | std p / q / r / thrust | at the bounds p / q / r / thrust |", "|---|---:|---|---|"]
+    for name, s in labels.items():
+        std = " / ".join("-" if v is None else f"{v:.3f}" for v in s["label_std"])
+        sat = " / ".join(_pct(v) for v in s["saturated_share"])
+        lines.append(f"| {name} | {s['samples']:,} | {std} | {sat} |")
+    lines += ["", f"The expert with its decisions held for k control steps and decoded like the learner's "
+              f"(`wt-inspect study hold-check --seconds {hold_seconds:g}`: {hold_seconds:g} s from the mission start, "
+              "4 m/s gust; k = 4 is the learner's 25 Hz):", "",
+              "| k | flight | end | coverage | SM | CM | RMS distance error |", "|---:|---:|---|---:|---:|---:|---:|"]
+    for k, h in hold.items():
+        lines.append(f"| {k} | {h['flight_s']:.1f} s | {h['termination'] or 'time limit'} | {_pct(h['coverage'])} | "
+                     f"{_pct(h['safety_sm'])} | {_pct(h['centering_cm'])} | {h['rms_distance_error_m']:.3f} m |")
+    lines += ["", "Files: `analysis.json` (the two tables above), `summary.json`, `evaluations.json` and "
+              "`learning_curve.png` of the DAgger run.", ""]
+    return "\n".join(lines)
+
+
+def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo_config: Any = None,
+              recipe: Any = None, hold_seconds: float = HOLD_SECONDS, progress: bool = True,
+              command: str = "") -> dict[str, Any]:
+    """The whole study into ``out`` (module docstring); returns the analysis."""
+    from agents.dagger import DAggerConfig, dagger
+    from agents.recipe import RECIPE_DIR, load_recipe
+    from wt_inspect_env.util.atomic_io import check_out_dir, write_text_atomic
+
+    from . import hold_check
+
+    out = check_out_dir(out, "--out")
+    cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round)
+    rec = recipe if recipe is not None else load_recipe(RECIPE_DIR / "dagger_full.json")
+    dataset = ensure_demonstrations(out, demo_config if demo_config is not None else _demo_config(None), progress)
+    run = out / "run"
+    summary = dagger(dataset, run, recipe=rec, task="full", config=cfg, progress=progress)
+    labels = labels_by_source(run)
+    hold = hold_check.run(hold_seconds)
+    demos = json.loads((dataset / "wt_inspect_demos.json").read_text())
+    for name in ("summary.json", "evaluations.json", "learning_curve.png"):
+        src = run / name
+        if src.is_file():
+            (out / name).write_bytes(src.read_bytes())
+    analysis = {"labels (agent actions [p, q, r, thrust] in [-1, 1])": labels,
+                f"expert decisions held for k control steps ({hold_seconds:g} s from the mission start, 4 m/s gust)":
+                    {f"k={k}": v for k, v in hold.items()}}
+    write_text_atomic(out / "analysis.json", json.dumps(analysis, indent=1) + "\n")
+    write_text_atomic(out / "results.md", markdown(summary, labels, hold, demos, command, hold_seconds))
+    return analysis
+
+
+def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation") -> int:
+    """``wt-inspect study imitation``: run (or resume) the study given by ``argv``; returns the exit code."""
+    ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--rounds", type=int, default=3, help="DAgger rounds after behaviour cloning (default 3)")
+    ap.add_argument("--episodes-per-round", type=int, default=4)
+    ap.add_argument("--demo-config", default=None, help="JSON object of DemoConfig fields (default: its defaults)")
+    ap.add_argument("--hold-seconds", type=float, default=HOLD_SECONDS)
+    ap.add_argument("--no-progress", action="store_true")
+    args = ap.parse_args(argv)
+    command = " ".join(["wt-inspect study imitation", *(argv if argv is not None else sys.argv[1:])])
+    try:
+        if not args.hold_seconds > 0:
+            raise ValueError(f"--hold-seconds must be positive, got {args.hold_seconds!r}")
+        run_study(args.out, rounds=args.rounds, episodes_per_round=args.episodes_per_round,
+                  demo_config=_demo_config(args.demo_config), hold_seconds=args.hold_seconds,
+                  progress=not args.no_progress, command=command)
+    except ValueError as exc:
+        print(f"{prog}: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {args.out}/results.md, analysis.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
