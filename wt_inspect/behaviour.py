@@ -21,7 +21,8 @@ that different controllers, winds or rows are covered, and the full regeneration
 
 The runs of a study are those its commands would fly, planned from the commands themselves with
 the subcommands' own parsers (:func:`study_runs`); ``evaluate``, ``campaign``, ``ablation`` and
-``study safety-filter`` / ``study pose-sweep`` fly runs here, and ``tune`` its first trial (the
+``study safety-filter`` / ``study pose-sweep`` fly runs here (``study imitation``: its expert on the
+paper mission), and ``tune`` its first trial (the
 controller's own weights). ``study planner-clearance`` flies nothing but plans: its digest is the
 stand-off path of its first and last turbine (poses at 21 evenly spaced samples). ``train`` (PPO on
 the vector env) digests the first update of its first and last seed (:mod:`agents.digest`: the
@@ -174,6 +175,12 @@ def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
     if argv and argv[0] == "planner-clearance":
         from .studies.planner_clearance import planned_draws
         return [StudyRun("planner", d) for d in planned_draws(list(argv[1:]))]
+    if argv and argv[0] == "imitation":
+        # the expert it imitates on the mission of its evaluations and hold check (the paper mission
+        # in the 4 m/s gust): a change to the expert, the plant or the mission shows; one to the
+        # learner's own code (cloning, DAgger) does not - nothing short of the study itself flies that
+        from .evaluation import sweep_specs
+        return [StudyRun("evaluate", s) for s in sweep_specs("paper", ["vtnmpc-plus"], [4.0], [0])]
     return []
 
 

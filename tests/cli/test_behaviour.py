@@ -71,6 +71,10 @@ def test_the_runs_of_a_study_are_planned_from_its_commands():
     assert len(d["t"]) == 21 and d["t"][0] == 0.0 and behaviour.compare(d, behaviour.fly_prefix(planned[0])) == ""
     moved = {**d, "position": [[x + 0.01, y, z] for x, y, z in d["position"]]}   # a plan 1 cm off
     assert "position" in behaviour.compare(d, moved)
+    # the imitation study is digested by its expert on the paper mission in the 4 m/s gust
+    imit = behaviour.digested_runs(["wt-inspect study imitation --out x --rounds 3"])
+    assert [(r.runner, r.spec.controller, r.spec.scenario, r.spec.wind) for r in imit] == [
+        ("evaluate", "vtnmpc-plus", "paper", 4.0)]
     # commands that fly nothing have no digest; the first and the last run carry it
     assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
     assert [r.spec.controller for r in behaviour.digested_runs(
