@@ -78,6 +78,24 @@ class DemoConfig:
         if not 0.0 <= check_finite("demo start_progress", self.start_progress) < 1.0:
             raise ValueError(f"demo start_progress must lie in [0, 1), got {self.start_progress!r}")
 
+    @classmethod
+    def from_json(cls, text: str | None, option: str = "--config") -> "DemoConfig":
+        """The config from a JSON object of its fields (None or empty: the defaults); a one-line
+        ValueError naming ``option`` for text that is not such an object."""
+        if not text:
+            return cls()
+        try:
+            fields = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{option} is not valid JSON: {exc}") from None
+        if not isinstance(fields, dict):
+            raise ValueError(f"{option} must be a JSON object of DemoConfig fields, got {text!r}")
+        unknown = sorted(set(fields) - set(cls.__dataclass_fields__))
+        if unknown:
+            raise ValueError(f"{option}: unknown demo config field(s) {unknown}; "
+                             f"valid: {sorted(cls.__dataclass_fields__)}")
+        return cls(**fields)
+
 
 # A dataset name: Minari's ``dataset_name-v<version>`` without a namespace of its own (the
 # namespace is DATASET_NAMESPACE) - letters, digits, ``-`` and ``_``, so it is one folder inside
@@ -225,22 +243,17 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(list(argv))
     try:
-        fields = json.loads(args.config) if args.config else {}
+        cfg = DemoConfig.from_json(args.config, "--config")
         env = json.loads(args.env) if args.env else {}
-        if not isinstance(fields, dict) or not isinstance(env, dict):
-            raise ValueError("--config and --env must be JSON objects")
-        unknown = sorted(set(fields) - set(DemoConfig.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"unknown demo config field(s) {unknown}; "
-                             f"valid: {sorted(DemoConfig.__dataclass_fields__)}")
+        if not isinstance(env, dict):
+            raise ValueError("--env must be a JSON object")
         from .evaluation.registry import check_controller
         check_dataset_name(args.name)   # before anything is imported, built or recorded
         check_out_dir(args.out, "--out")
-        cfg = DemoConfig(**fields)
         check_controller(cfg.expert)
         summary = record_demonstrations(cfg, args.out, args.name, env, progress=not args.no_progress)
     except json.JSONDecodeError as exc:
-        print(f"{prog}: --config/--env is not valid JSON: {exc}", file=sys.stderr)
+        print(f"{prog}: error: --env is not valid JSON: {exc}", file=sys.stderr)
         return 2
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)

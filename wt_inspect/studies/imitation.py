@@ -25,13 +25,14 @@ data stay in ``OUT/demos`` and ``OUT/run`` (large; not committed).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
+
+from ..demonstrations import DemoConfig
 
 DATASET = "vtnmpc-plus-full-v0"
 #: a label component at least this close to +-1 counts as saturated (the action bounds)
@@ -68,21 +69,6 @@ def labels_by_source(run: Path) -> dict[str, dict[str, Any]]:
         out[f"dagger round {e['round']} (beta {e['beta']:g})"] = label_stats(Ya[before:n])
         before = n
     return out
-
-
-def _demo_config(text: str | None):
-    from wt_inspect.demonstrations import DemoConfig
-    if text is None:
-        return DemoConfig()
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--demo-config is not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"--demo-config must be a JSON object of DemoConfig fields, got {text!r}")
-    from wt_inspect_env.util.validation import check_unknown_options
-    check_unknown_options("--demo-config", data.keys(), [f.name for f in dataclasses.fields(DemoConfig)])
-    return DemoConfig(**data)
 
 
 def ensure_demonstrations(out: Path, cfg: Any, progress: bool) -> Path:
@@ -155,7 +141,7 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     out = check_out_dir(out, "--out")
     cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round)
     rec = recipe if recipe is not None else load_recipe(RECIPE_DIR / "dagger_full.json")
-    dataset = ensure_demonstrations(out, demo_config if demo_config is not None else _demo_config(None), progress)
+    dataset = ensure_demonstrations(out, demo_config if demo_config is not None else DemoConfig(), progress)
     run = out / "run"
     summary = dagger(dataset, run, recipe=rec, task="full", config=cfg, progress=progress)
     labels = labels_by_source(run)
@@ -188,7 +174,7 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
         if not args.hold_seconds > 0:
             raise ValueError(f"--hold-seconds must be positive, got {args.hold_seconds!r}")
         run_study(args.out, rounds=args.rounds, episodes_per_round=args.episodes_per_round,
-                  demo_config=_demo_config(args.demo_config), hold_seconds=args.hold_seconds,
+                  demo_config=DemoConfig.from_json(args.demo_config, "--demo-config"), hold_seconds=args.hold_seconds,
                   progress=not args.no_progress, command=command)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
