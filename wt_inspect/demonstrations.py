@@ -159,7 +159,7 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
         raise ValueError(f"--out {str(out)!r} cannot be created: {exc.strerror or exc}") from None
     tmp_root = Path(tempfile.mkdtemp(prefix=".minari-", dir=out))
     old_path = os.environ.get("MINARI_DATASETS_PATH")
-    os.environ["MINARI_DATASETS_PATH"] = str(tmp_root)
+    os.environ["MINARI_DATASETS_PATH"] = str(tmp_root.resolve())   # Minari joins a relative one to itself
     rng = np.random.default_rng(cfg.seed)
     plan = _episode_plan(cfg)
     buffers, episode_meta, steps = [], [], 0

@@ -31,11 +31,14 @@ def _tiny_recipe() -> Recipe:
 
 
 @pytest.mark.slow
-def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tmp_path):
+def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tmp_path, monkeypatch):
+    """From a relative --out, as the manifest gives it (Minari once doubled such a path)."""
+    monkeypatch.chdir(tmp_path)
     demos = DemoConfig(winds=[{"type": "gust", "mean_speed": 4.0}], episodes=2, time_limit_s=0.4, full_missions=0)
     kw = dict(rounds=1, episodes_per_round=1, demo_config=demos, recipe=_tiny_recipe(), hold_seconds=0.2,
               progress=False, command="wt-inspect study imitation --out X --rounds 1")
-    a = imitation.run_study(tmp_path, **kw)
+    a = imitation.run_study("study", **kw)
+    tmp_path = tmp_path / "study"
     labels = a["labels (agent actions [p, q, r, thrust] in [-1, 1])"]
     assert list(labels) == ["demonstrations", "dagger round 1 (beta 0.5)"]
     for s in labels.values():
@@ -46,14 +49,14 @@ def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tm
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "learning_curve.png").is_file()
     # a rerun with one more round reuses the demonstrations and the finished round
     stamp = (tmp_path / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json").stat().st_mtime_ns
-    a2 = imitation.run_study(tmp_path, **{**kw, "rounds": 2})
+    a2 = imitation.run_study("study", **{**kw, "rounds": 2})
     assert list(a2["labels (agent actions [p, q, r, thrust] in [-1, 1])"])[1:] == [
         "dagger round 1 (beta 0.5)", "dagger round 2 (beta 0.25)"]
     assert a2["labels (agent actions [p, q, r, thrust] in [-1, 1])"]["dagger round 1 (beta 0.5)"] == \
         labels["dagger round 1 (beta 0.5)"]
     assert (tmp_path / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json").stat().st_mtime_ns == stamp
     with pytest.raises(ValueError, match="demonstrations of another configuration"):
-        imitation.run_study(tmp_path, **{**kw, "demo_config": DemoConfig(**{**demos.__dict__, "episodes": 3})})
+        imitation.run_study("study", **{**kw, "demo_config": DemoConfig(**{**demos.__dict__, "episodes": 3})})
 
 
 @pytest.mark.parametrize("argv, match", [
