@@ -47,6 +47,8 @@ def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tm
     assert "| 0 (behaviour cloning) |" in md and "| 1 | 0.5 |" in md and "`wt-inspect study imitation --out X" in md
     assert json.loads((tmp_path / "analysis.json").read_text()) == json.loads(json.dumps(a))
     assert (tmp_path / "summary.json").is_file() and (tmp_path / "learning_curve.png").is_file()
+    from agents.policy import load_sidecar
+    assert load_sidecar(tmp_path / "best_model.zip")["algo"] == "ppo"     # the result flies as ppo:OUT/best_model.zip
     # a rerun with one more round reuses the demonstrations and the finished round
     stamp = (tmp_path / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json").stat().st_mtime_ns
     a2 = imitation.run_study("study", **{**kw, "rounds": 2})

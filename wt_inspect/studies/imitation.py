@@ -19,8 +19,9 @@ and explains the outcome::
 4. The hold check (:mod:`wt_inspect.studies.hold_check`): VT-NMPC+ flying its own decisions held
    like the learner's, so that the decision rate is ruled in or out as the cause.
 
-``OUT/results.md`` gives all of it with the command; the dataset, the models and the aggregated
-data stay in ``OUT/demos`` and ``OUT/run`` (large; not committed).
+``OUT/results.md`` gives all of it with the command, and the best round's policy is copied to
+``OUT/best_model.zip`` (``--controllers ppo:OUT/best_model.zip`` flies it); the dataset, every
+round's model and the aggregated data stay in ``OUT/demos`` and ``OUT/run`` (large; not committed).
 """
 from __future__ import annotations
 
@@ -124,7 +125,8 @@ def markdown(summary: Mapping[str, Any], labels: Mapping[str, Mapping[str, Any]]
         lines.append(f"| {k} | {h['flight_s']:.1f} s | {h['termination'] or 'time limit'} | {_pct(h['coverage'])} | "
                      f"{_pct(h['safety_sm'])} | {_pct(h['centering_cm'])} | {h['rms_distance_error_m']:.3f} m |")
     lines += ["", "Files: `analysis.json` (the two tables above), `summary.json`, `evaluations.json` and "
-              "`learning_curve.png` of the DAgger run.", ""]
+              "`learning_curve.png` of the DAgger run, and its best round's policy `best_model.zip` (with its "
+              "sidecars; `--controllers ppo:<this folder>/best_model.zip` flies it).", ""]
     return "\n".join(lines)
 
 
@@ -147,7 +149,10 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     labels = labels_by_source(run)
     hold = hold_check.run(hold_seconds)
     demos = json.loads((dataset / "wt_inspect_demos.json").read_text())
-    for name in ("summary.json", "evaluations.json", "learning_curve.png"):
+    # the run's best policy beside its numbers (small), so that the result flies:
+    # --controllers ppo:OUT/best_model.zip
+    for name in ("summary.json", "evaluations.json", "learning_curve.png", "best_model.zip", "best_model.json",
+                 "best_model.vecnormalize.json"):
         src = run / name
         if src.is_file():
             (out / name).write_bytes(src.read_bytes())
