@@ -8,7 +8,7 @@ covered by the layering test and run from any directory::
     wt-inspect study wind-offset  --out results/lab/wind_offset.csv
     wt-inspect study routes       RUNS_ROOT --out routes   # routes/routes.{json,png}, from runs not committed
     wt-inspect study hold-check   --seconds 12             # printed; part of the imitation study
-    wt-inspect study imitation    --out results/imitation/dagger --rounds 3
+    wt-inspect study imitation    --out results/imitation/dagger --rounds 8
     wt-inspect study safety-filter --starts 1000 --out results/safety_filter
     wt-inspect study pose-sweep   --turbine paper --out results/pose_sweep/paper --jobs 2
     wt-inspect study planner-clearance --turbines 1000 --out results/planner_clearance --jobs 2
@@ -19,7 +19,7 @@ covered by the layering test and run from any directory::
 * :mod:`.wind_offset` - the lab drone's steady stand-off error against the wind's drag;
 * :mod:`.routes` - every training route to a full-mission policy on one time axis;
 * :mod:`.hold_check` - VT-NMPC+ with its decisions held like the DAgger learner's;
-* :mod:`.imitation` - demonstrations, behaviour cloning and DAgger of VT-NMPC+ from nothing, and why it does not fly;
+* :mod:`.imitation` - demonstrations, behaviour cloning and DAgger of VT-NMPC+ from nothing, and what each round learns;
 * :mod:`.safety_filter` - the safety filter against policies that fly at the structure;
 * :mod:`.pose_sweep` - whole missions over a grid of rotor azimuths and nacelle facings;
 * :mod:`.planner_clearance` - the planner's stand-off path against d_min on drawn turbines.

@@ -1,9 +1,9 @@
-"""DAgger of VT-NMPC+ on the full mission from nothing, and why it does not fly (``results/imitation/dagger``).
+"""DAgger of VT-NMPC+ on the full mission from nothing, and what each round learns (``results/imitation/dagger``).
 
 One command records the demonstrations, runs behaviour cloning and a fixed number of DAgger rounds,
 and explains the outcome::
 
-    wt-inspect study imitation --out results/imitation/dagger --rounds 3
+    wt-inspect study imitation --out results/imitation/dagger --rounds 8
 
 1. Demonstrations (:func:`wt_inspect.demonstrations.record_demonstrations`, the default
    :class:`~wt_inspect.demonstrations.DemoConfig` unless ``--demo-config`` says otherwise) into
@@ -14,8 +14,8 @@ and explains the outcome::
    machine); a rerun resumes after the last finished round.
 3. The labels by source (``analysis.json``): the spread of the expert's labels and the share at the
    action bounds, in the demonstrations and in each round's learner-visited states - where the
-   learner drifts, the expert answers with saturated recovery commands that the network fits
-   neither with nor without the nominal flight.
+   learner drifts, the expert answers with saturated recovery commands the demonstrations never
+   show, which the network has to learn before it stays near the path.
 4. The hold check (:mod:`wt_inspect.studies.hold_check`): VT-NMPC+ flying its own decisions held
    like the learner's, so that the decision rate is ruled in or out as the cause.
 
@@ -51,21 +51,20 @@ def label_stats(Y: np.ndarray) -> dict[str, Any]:
             "saturated_share": [round(float(s), 4) for s in (np.abs(Y) >= SATURATED).mean(axis=0)]}
 
 
-def labels_by_source(run: Path) -> dict[str, dict[str, Any]]:
+def labels_by_source(run: Path, per_round: list[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
     """:func:`label_stats` of the demonstrations and of each DAgger round's new labels, from the
-    run's cached arrays (``demo_features.npz``, ``dagger_data.npz``) and its per-round sample counts
-    (``evaluations.json``: ``samples_dagger`` is cumulative)."""
+    run's cached arrays (``demo_features.npz``, ``dagger_data.npz``) and its summary's ``per_round``
+    sample counts (``samples_dagger`` is cumulative; round 0 is the clone)."""
     out: dict[str, dict[str, Any]] = {}
     with np.load(run / "demo_features.npz") as z:
         out["demonstrations"] = label_stats(z["Y"])
-    evaluations = json.loads((run / "evaluations.json").read_text())
     agg = run / "dagger_data.npz"
     if not agg.is_file():
         return out
     with np.load(agg) as z:
         Ya = z["Y"]
     before = 0
-    for e in evaluations[1:]:
+    for e in per_round[1:]:
         n = int(e.get("samples_dagger") or 0)
         out[f"dagger round {e['round']} (beta {e['beta']:g})"] = label_stats(Ya[before:n])
         before = n
@@ -136,7 +135,7 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     """The whole study into ``out`` (module docstring); returns the analysis."""
     from agents.dagger import DAggerConfig, dagger
     from agents.recipe import RECIPE_DIR, load_recipe
-    from wt_inspect_env.util.atomic_io import check_out_dir, write_text_atomic
+    from wt_inspect_env.util.atomic_io import check_out_dir, write_bytes_atomic, write_text_atomic
 
     from . import hold_check
 
@@ -146,7 +145,7 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     dataset = ensure_demonstrations(out, demo_config if demo_config is not None else DemoConfig(), progress)
     run = out / "run"
     summary = dagger(dataset, run, recipe=rec, task="full", config=cfg, progress=progress)
-    labels = labels_by_source(run)
+    labels = labels_by_source(run, summary["per_round"])
     hold = hold_check.run(hold_seconds)
     demos = json.loads((dataset / "wt_inspect_demos.json").read_text())
     # the run's best policy beside its numbers (small), so that the result flies:
@@ -155,7 +154,7 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
                  "best_model.vecnormalize.json"):
         src = run / name
         if src.is_file():
-            (out / name).write_bytes(src.read_bytes())
+            write_bytes_atomic(out / name, src.read_bytes())
     analysis = {"labels (agent actions [p, q, r, thrust] in [-1, 1])": labels,
                 f"expert decisions held for k control steps ({hold_seconds:g} s from the mission start, 4 m/s gust)":
                     {f"k={k}": v for k, v in hold.items()}}
