@@ -22,8 +22,8 @@ def test_label_stats_count_the_spread_and_the_saturated_share():
     assert imitation.label_stats(np.zeros((0, 4)))["samples"] == 0
 
 
-def _tiny_recipe() -> Recipe:
-    d = load_recipe(RECIPE_DIR / "dagger_full.json").to_dict()
+def _tiny_recipe(name: str = "dagger_full.json") -> Recipe:
+    d = load_recipe(RECIPE_DIR / name).to_dict()
     d["env"]["time_limit_s"] = 0.4
     d["eval_env"]["time_limit_s"] = 0.3
     d["policy_kwargs"]["net_arch"] = {"pi": [8], "vf": [8]}
@@ -61,10 +61,35 @@ def test_the_study_runs_from_nothing_resumes_and_refuses_other_demonstrations(tm
         imitation.run_study("study", **{**kw, "demo_config": DemoConfig(**{**demos.__dict__, "episodes": 3})})
 
 
+@pytest.mark.slow
+def test_demonstrations_observe_what_the_recipes_features_need_and_the_seed_reaches_both(tmp_path):
+    """structure_body features: the demonstrations are recorded with structure_observation, so the
+    clone's features hold the structure (a dataset without it could not be encoded)."""
+    demos = DemoConfig(winds=["none"], episodes=1, time_limit_s=0.4, full_missions=0, seed=3)
+    imitation.run_study(tmp_path / "s", rounds=1, episodes_per_round=1, demo_config=demos, seed=3,
+                        recipe=_tiny_recipe("dagger_full_structure.json"), hold_seconds=0.2, progress=False)
+    meta = json.loads((tmp_path / "s" / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json")
+                      .read_text())
+    assert meta["env_options"] == {"structure_observation": True} and meta["config"]["seed"] == 3
+    with np.load(tmp_path / "s" / "run" / "demo_features.npz") as z:
+        X = z["X"]
+    n_plain = load_recipe(RECIPE_DIR / "dagger_full.json").spec.features.size
+    assert X.shape[1] == n_plain + 4                     # structure_body: direction (3) and distance (1)
+    assert np.all(X[:, -1] > 0) and np.ptp(X[:, -4:-1], axis=0).max() > 0
+    assert json.loads((tmp_path / "s" / "summary.json").read_text())["config"]["seed"] == 3
+    # the same folder with the plain recipe: the recorded demonstrations lack nothing it needs, but
+    # were recorded for other options - refused rather than silently mixed
+    with pytest.raises(ValueError, match="env options"):
+        imitation.run_study(tmp_path / "s", rounds=1, episodes_per_round=1, demo_config=demos, seed=3,
+                            recipe=_tiny_recipe(), hold_seconds=0.2, progress=False)
+
+
 @pytest.mark.parametrize("argv, match", [
     (["--out", "{tmp}", "--demo-config", "{nope"], "--demo-config is not valid JSON"),
     (["--out", "{tmp}", "--demo-config", '{"episods": 2}'], "episods"),
     (["--out", "{tmp}", "--hold-seconds", "0"], "--hold-seconds must be positive"),
+    (["--out", "{tmp}", "--seed", "-1"], "--seed must be a non-negative integer"),
+    (["--out", "{tmp}", "--recipe", "{tmp}-missing.json"], "missing.json"),
 ])
 def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, match):
     argv = [a.replace("{tmp}", str(tmp_path / "o")) for a in argv]

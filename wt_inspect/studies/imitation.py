@@ -8,7 +8,11 @@ and explains the outcome::
 1. Demonstrations (:func:`wt_inspect.demonstrations.record_demonstrations`, the default
    :class:`~wt_inspect.demonstrations.DemoConfig` unless ``--demo-config`` says otherwise) into
    ``OUT/demos/``; an existing dataset is reused only when its recorded configuration is the requested one.
-2. DAgger (:func:`agents.dagger.dagger`, recipe ``agents/recipes/dagger_full.json``) into ``OUT/run/``
+   The demonstrations observe what the recipe's features need (e.g. the nearest structure point for
+   ``structure_body``: ``structure_observation``), so that the clone sees the same features as its rollouts.
+   ``--seed s`` seeds both the recording (DemoConfig.seed) and DAgger (DAggerConfig.seed): one seed of
+   the route from nothing.
+2. DAgger (:func:`agents.dagger.dagger`, recipe ``--recipe``, by default ``agents/recipes/dagger_full.json``) into ``OUT/run/``
    for ``--rounds`` rounds and no wall-clock budget, so that the study is the same on every machine
    however fast (the budget of a training run, ``--max-minutes``, makes its length depend on the
    machine); a rerun resumes after the last finished round.
@@ -71,19 +75,22 @@ def labels_by_source(run: Path, per_round: list[Mapping[str, Any]]) -> dict[str,
     return out
 
 
-def ensure_demonstrations(out: Path, cfg: Any, progress: bool) -> Path:
-    """The dataset of ``cfg`` in ``out/demos`` (recorded unless already there with this configuration)."""
+def ensure_demonstrations(out: Path, cfg: Any, progress: bool, env_options: Mapping[str, Any] | None = None) -> Path:
+    """The dataset of ``cfg`` recorded on envs made with ``env_options`` in ``out/demos`` (recorded
+    unless already there with this configuration and these options)."""
     from wt_inspect.demonstrations import record_demonstrations
     path = out / "demos" / "wt-inspect" / DATASET
     wanted = json.loads(json.dumps({**cfg.__dict__, "winds": list(cfg.winds)}))
+    options = dict(env_options or {})
     meta = path / "wt_inspect_demos.json"
     if meta.is_file():
-        have = json.loads(meta.read_text()).get("config")
-        if have != wanted:
-            raise ValueError(f"{str(path)!r} holds demonstrations of another configuration ({have!r}); "
-                             "remove it or use another --out")
+        recorded = json.loads(meta.read_text())
+        have = recorded.get("config")
+        if have != wanted or recorded.get("env_options", {}) != options:
+            raise ValueError(f"{str(path)!r} holds demonstrations of another configuration ({have!r}, env options "
+                             f"{recorded.get('env_options', {})!r}); remove it or use another --out")
         return path
-    record_demonstrations(cfg, out / "demos", DATASET, progress=progress)
+    record_demonstrations(cfg, out / "demos", DATASET, env_options=options, progress=progress)
     return path
 
 
@@ -92,14 +99,15 @@ def _pct(x: Any) -> str:
 
 
 def markdown(summary: Mapping[str, Any], labels: Mapping[str, Mapping[str, Any]], hold: Mapping[Any, Any],
-             demos: Mapping[str, Any], command: str, hold_seconds: float) -> str:
+             demos: Mapping[str, Any], command: str, hold_seconds: float,
+             recipe_name: str = "agents/recipes/dagger_full.json") -> str:
     """results.md of the study (see the module docstring)."""
     cfg = summary["config"]
     lines = [f"# DAgger of {cfg['expert']} on the full mission", "", f"`{command}`", "",
              f"Demonstrations: {demos.get('total_episodes', '?')} episodes, {demos.get('steps', 0):,} control steps, "
              f"{summary['samples_demonstrations']:,} labelled states (configuration in "
              f"`demos/wt-inspect/{DATASET}/wt_inspect_demos.json`, not committed: "
-             f"`{json.dumps(demos.get('config', {}))}`). DAgger: recipe `agents/recipes/dagger_full.json`, "
+             f"`{json.dumps(demos.get('config', {}))}`). DAgger: recipe `{recipe_name}`, seed {cfg.get('seed', 0)}, "
              f"{cfg['rounds']} round(s) of {cfg['episodes_per_round']} rollout(s), the expert's share beta "
              f"{cfg['beta0']:g} in round 1 and x{cfg['beta_decay']:g} per round after, no wall-clock budget. Each "
              "round is evaluated on the recipe's evaluation mission (one deterministic episode).", "",
@@ -130,19 +138,29 @@ def markdown(summary: Mapping[str, Any], labels: Mapping[str, Mapping[str, Any]]
 
 
 def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo_config: Any = None,
-              recipe: Any = None, hold_seconds: float = HOLD_SECONDS, progress: bool = True,
-              command: str = "") -> dict[str, Any]:
-    """The whole study into ``out`` (module docstring); returns the analysis."""
+              recipe: Any = None, seed: int = 0, hold_seconds: float = HOLD_SECONDS,
+              progress: bool = True, command: str = "") -> dict[str, Any]:
+    """The whole study into ``out`` (module docstring); returns the analysis. ``recipe``: a recipe
+    file (default ``agents/recipes/dagger_full.json``) or a ``Recipe``; ``seed`` seeds DAgger and, unless
+    ``demo_config`` is given, the demonstrations."""
     from agents.dagger import DAggerConfig, dagger
+    from agents.interface import needed_env_options
     from agents.recipe import RECIPE_DIR, load_recipe
     from wt_inspect_env.util.atomic_io import check_out_dir, write_bytes_atomic, write_text_atomic
 
     from . import hold_check
 
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"--seed must be a non-negative integer, got {seed!r}")
     out = check_out_dir(out, "--out")
-    cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round)
-    rec = recipe if recipe is not None else load_recipe(RECIPE_DIR / "dagger_full.json")
-    dataset = ensure_demonstrations(out, demo_config if demo_config is not None else DemoConfig(), progress)
+    cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round, seed=seed)
+    if recipe is None or isinstance(recipe, (str, Path)):
+        recipe_path = Path(recipe) if recipe is not None else RECIPE_DIR / "dagger_full.json"
+        rec, recipe_name = load_recipe(recipe_path), _shown_path(recipe_path)
+    else:                                       # a Recipe built in code (tests, notebooks)
+        rec, recipe_name = recipe, "(a recipe given in code)"
+    demo_cfg = demo_config if demo_config is not None else DemoConfig(seed=seed)
+    dataset = ensure_demonstrations(out, demo_cfg, progress, needed_env_options(rec.spec.features.groups))
     run = out / "run"
     summary = dagger(dataset, run, recipe=rec, task="full", config=cfg, progress=progress)
     labels = labels_by_source(run, summary["per_round"])
@@ -159,8 +177,17 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
                 f"expert decisions held for k control steps ({hold_seconds:g} s from the mission start, 4 m/s gust)":
                     {f"k={k}": v for k, v in hold.items()}}
     write_text_atomic(out / "analysis.json", json.dumps(analysis, indent=1) + "\n")
-    write_text_atomic(out / "results.md", markdown(summary, labels, hold, demos, command, hold_seconds))
+    write_text_atomic(out / "results.md", markdown(summary, labels, hold, demos, command, hold_seconds,
+                                                   recipe_name))
     return analysis
+
+
+def _shown_path(p: Path) -> str:
+    """``p`` relative to the working directory when inside it (results name repository paths)."""
+    try:
+        return Path(p).resolve().relative_to(Path.cwd().resolve()).as_posix()
+    except ValueError:
+        return str(p)
 
 
 def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation") -> int:
@@ -170,6 +197,8 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
     ap.add_argument("--rounds", type=int, default=3, help="DAgger rounds after behaviour cloning (default 3)")
     ap.add_argument("--episodes-per-round", type=int, default=4)
     ap.add_argument("--demo-config", default=None, help="JSON object of DemoConfig fields (default: its defaults)")
+    ap.add_argument("--recipe", default=None, help="DAgger recipe file (default agents/recipes/dagger_full.json)")
+    ap.add_argument("--seed", type=int, default=0, help="seed of the demonstrations and of DAgger (default 0)")
     ap.add_argument("--hold-seconds", type=float, default=HOLD_SECONDS)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
@@ -177,8 +206,9 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
     try:
         if not args.hold_seconds > 0:
             raise ValueError(f"--hold-seconds must be positive, got {args.hold_seconds!r}")
-        run_study(args.out, rounds=args.rounds, episodes_per_round=args.episodes_per_round,
-                  demo_config=DemoConfig.from_json(args.demo_config, "--demo-config"), hold_seconds=args.hold_seconds,
+        demo_cfg = DemoConfig.from_json(args.demo_config, "--demo-config") if args.demo_config else None
+        run_study(args.out, rounds=args.rounds, episodes_per_round=args.episodes_per_round, demo_config=demo_cfg,
+                  recipe=args.recipe, seed=args.seed, hold_seconds=args.hold_seconds,
                   progress=not args.no_progress, command=command)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
