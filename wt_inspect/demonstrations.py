@@ -27,6 +27,7 @@ import re
 import shutil
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -162,6 +163,7 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
     os.environ["MINARI_DATASETS_PATH"] = str(tmp_root.resolve())   # Minari joins a relative one to itself
     rng = np.random.default_rng(cfg.seed)
     plan = _episode_plan(cfg)
+    t_start = time.perf_counter()
     buffers, episode_meta, steps = [], [], 0
     env = None
     try:
@@ -214,6 +216,8 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
         meta = {"config": {**cfg.__dict__, "winds": list(cfg.winds)}, "env_id": env_id,
                 "env_options": dict(env_options or {}), "episodes": episode_meta, "steps": steps,
                 "total_episodes": dataset.total_episodes,
+                # part of a route's wall time from nothing (the imitation study's seeds report adds it)
+                "wall_time_s": round(time.perf_counter() - t_start, 1),
                 "drone": {"mass": env.unwrapped.params.mass, "standoff": env.unwrapped.config.standoff,
                           "ctrl_hz": env.unwrapped.config.ctrl_hz}}
         src = tmp_root / DATASET_NAMESPACE / name
