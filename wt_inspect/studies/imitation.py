@@ -12,7 +12,8 @@ and explains the outcome::
    ``structure_body``: ``structure_observation``), so that the clone sees the same features as its rollouts.
    ``--seed s`` seeds both the recording (DemoConfig.seed) and DAgger (DAggerConfig.seed): one seed of
    the route from nothing.
-2. DAgger (:func:`agents.dagger.dagger`, recipe ``--recipe``, by default ``agents/recipes/dagger_full.json``) into ``OUT/run/``
+2. DAgger (:func:`agents.dagger.dagger`, recipe ``--recipe``, by default ``agents/recipes/dagger_full.json``)
+   into ``OUT/run/``
    for ``--rounds`` rounds and no wall-clock budget, so that the study is the same on every machine
    however fast (the budget of a training run, ``--max-minutes``, makes its length depend on the
    machine); a rerun resumes after the last finished round.
@@ -237,7 +238,7 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
 
     names = list(doc["targets"])
     lines = [f"# DAgger from nothing over {len(doc['seeds'])} seeds", "", f"`{command}`", "",
-             f"Each seed's study (demonstrations, DAgger, analysis) is in `seed_<s>/results.md`. Seeds meeting the "
+             "Each seed's study (demonstrations, DAgger, analysis) is in `seed_<s>/results.md`. Seeds meeting the "
              + "; ".join(f"{n} target: {doc['targets'][n]['n_reached']} of {len(doc['seeds'])}" for n in names)
              + ".", "", table(out, doc), "",
              "Wall time from nothing (one core each): recording the demonstrations, the whole DAgger run, and "
