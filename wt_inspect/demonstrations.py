@@ -38,7 +38,7 @@ import numpy as np
 import wt_inspect_env
 from wt_inspect_env.task.env_config import TASKS, check_start_noise
 from wt_inspect_env.util.atomic_io import check_out_dir
-from wt_inspect_env.util.validation import check_choice, check_finite, check_positive
+from wt_inspect_env.util.validation import check_choice, check_finite, check_positive, json_object_option
 
 DATASET_NAMESPACE = "wt-inspect"
 
@@ -81,16 +81,9 @@ class DemoConfig:
 
     @classmethod
     def from_json(cls, text: str | None, option: str = "--config") -> "DemoConfig":
-        """The config from a JSON object of its fields (None or empty: the defaults); a one-line
-        ValueError naming ``option`` for text that is not such an object."""
-        if not text:
-            return cls()
-        try:
-            fields = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{option} is not valid JSON: {exc}") from None
-        if not isinstance(fields, dict):
-            raise ValueError(f"{option} must be a JSON object of DemoConfig fields, got {text!r}")
+        """The config from a JSON object of its fields, inline or in a ``.json`` file (None or empty:
+        the defaults); a one-line ValueError naming ``option`` for anything else or an unknown field."""
+        fields = json_object_option(option, text)
         unknown = sorted(set(fields) - set(cls.__dataclass_fields__))
         if unknown:
             raise ValueError(f"{option}: unknown demo config field(s) {unknown}; "
@@ -248,17 +241,12 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
     args = ap.parse_args(list(argv))
     try:
         cfg = DemoConfig.from_json(args.config, "--config")
-        env = json.loads(args.env) if args.env else {}
-        if not isinstance(env, dict):
-            raise ValueError("--env must be a JSON object")
+        env = json_object_option("--env", args.env)
         from .evaluation.registry import check_controller
         check_dataset_name(args.name)   # before anything is imported, built or recorded
         check_out_dir(args.out, "--out")
         check_controller(cfg.expert)
         summary = record_demonstrations(cfg, args.out, args.name, env, progress=not args.no_progress)
-    except json.JSONDecodeError as exc:
-        print(f"{prog}: error: --env is not valid JSON: {exc}", file=sys.stderr)
-        return 2
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
