@@ -223,6 +223,7 @@ def seeds_document(out: Path, seeds: list[int]) -> dict[str, Any]:
         summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
         row["demonstrations_s"] = demo_s
         row["dagger_s"] = summary.get("wall_time_s")
+        row["best"] = summary.get("best_evaluation")
         for t in row["targets"].values():
             t["from_nothing_s"] = None if (t["wall_s"] is None or demo_s is None) else round(demo_s + t["wall_s"], 1)
     return doc
@@ -249,6 +250,18 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
         lines.append(f"| {row['seed']} | {minutes(row['demonstrations_s'])} | {minutes(row['dagger_s'])} | "
                      + " | ".join(minutes(row["targets"][n]["from_nothing_s"]) if row["targets"][n]["reached"]
                                   else "not met" for n in names) + " |")
+    def metres(x: Any) -> str:
+        return "-" if x is None else f"{float(x):.2f} m"
+
+    lines += ["", "The round each seed keeps (`seed_<s>/best_model.zip`: the best evaluation score), as evaluated:", "",
+              "| seed | round | coverage | SM | CM | least clearance | RMS distance error |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for row in doc["seeds"]:
+        best = row.get("best") or {}
+        m = best.get("mean", {})
+        lines.append(f"| {row['seed']} | {best.get('round', '-')} | {_pct(m.get('coverage'))} "
+                     f"| {_pct(m.get('safety_sm'))} | {_pct(m.get('centering_cm'))} "
+                     f"| {metres(m.get('clearance_min_m'))} | {metres(m.get('rms_distance_error_m'))} |")
     lines += ["", "Figure: `learning_curves_seeds.png` (every round's evaluation per seed, mean and spread).", ""]
     return "\n".join(lines)
 
