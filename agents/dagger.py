@@ -48,7 +48,7 @@ import numpy as np
 
 from wt_inspect_env.policy import ENTRY_POINT_GROUP, PolicyEntry, check_observation
 from wt_inspect_env.util.atomic_io import atomic_path, write_text_atomic
-from wt_inspect_env.util.validation import check_positive, check_unknown_options
+from wt_inspect_env.util.validation import check_positive, check_unknown_options, json_object_option
 
 from .imitation import (
     actor_parameters,
@@ -460,25 +460,6 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
     return summary
 
 
-def parse_options(text: str | None) -> dict[str, Any]:
-    """``--dagger-options``: a JSON object, inline or a path to a ``.json`` file."""
-    if text is None:
-        return {}
-    src = text
-    if not text.lstrip().startswith("{") and text.endswith(".json"):
-        p = Path(text)
-        if not p.is_file():
-            raise ValueError(f"--dagger-options file {text!r} not found")
-        src = p.read_text()
-    try:
-        data = json.loads(src)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"--dagger-options is not valid JSON: {exc}") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"--dagger-options must be a JSON object, got {text!r}")
-    return data
-
-
 def cli(args, prog: str) -> int:
     """``wt-inspect train --algo dagger --dataset DIR [--dagger-options JSON] [--recipe R] ...``."""
     from .recipe import load_recipe
@@ -491,7 +472,7 @@ def cli(args, prog: str) -> int:
                   "after its last round; the budget is --dagger-options rounds and --max-minutes)", file=sys.stderr)
             return 2
     try:
-        cfg = DAggerConfig.from_mapping(parse_options(args.dagger_options), seed=args.seed)
+        cfg = DAggerConfig.from_mapping(json_object_option("--dagger-options", args.dagger_options), seed=args.seed)
         rec = load_recipe(args.recipe or str(Path(__file__).parent / "recipes" / "dagger_full.json"))
         summary = dagger(args.dataset, args.out, recipe=rec, task=args.task or "full", config=cfg,
                          progress=not args.no_progress, max_minutes=args.max_minutes,

@@ -27,6 +27,7 @@ import re
 import shutil
 import sys
 import tempfile
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -37,7 +38,7 @@ import numpy as np
 import wt_inspect_env
 from wt_inspect_env.task.env_config import TASKS, check_start_noise
 from wt_inspect_env.util.atomic_io import check_out_dir
-from wt_inspect_env.util.validation import check_choice, check_finite, check_positive
+from wt_inspect_env.util.validation import check_choice, check_finite, check_positive, json_object_option
 
 DATASET_NAMESPACE = "wt-inspect"
 
@@ -80,16 +81,9 @@ class DemoConfig:
 
     @classmethod
     def from_json(cls, text: str | None, option: str = "--config") -> "DemoConfig":
-        """The config from a JSON object of its fields (None or empty: the defaults); a one-line
-        ValueError naming ``option`` for text that is not such an object."""
-        if not text:
-            return cls()
-        try:
-            fields = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{option} is not valid JSON: {exc}") from None
-        if not isinstance(fields, dict):
-            raise ValueError(f"{option} must be a JSON object of DemoConfig fields, got {text!r}")
+        """The config from a JSON object of its fields, inline or in a ``.json`` file (None or empty:
+        the defaults); a one-line ValueError naming ``option`` for anything else or an unknown field."""
+        fields = json_object_option(option, text)
         unknown = sorted(set(fields) - set(cls.__dataclass_fields__))
         if unknown:
             raise ValueError(f"{option}: unknown demo config field(s) {unknown}; "
@@ -162,6 +156,7 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
     os.environ["MINARI_DATASETS_PATH"] = str(tmp_root.resolve())   # Minari joins a relative one to itself
     rng = np.random.default_rng(cfg.seed)
     plan = _episode_plan(cfg)
+    t_start = time.perf_counter()
     buffers, episode_meta, steps = [], [], 0
     env = None
     try:
@@ -214,6 +209,8 @@ def record_demonstrations(cfg: DemoConfig, out: str | Path, name: str = "vtnmpc-
         meta = {"config": {**cfg.__dict__, "winds": list(cfg.winds)}, "env_id": env_id,
                 "env_options": dict(env_options or {}), "episodes": episode_meta, "steps": steps,
                 "total_episodes": dataset.total_episodes,
+                # part of a route's wall time from nothing (the imitation study's seeds report adds it)
+                "wall_time_s": round(time.perf_counter() - t_start, 1),
                 "drone": {"mass": env.unwrapped.params.mass, "standoff": env.unwrapped.config.standoff,
                           "ctrl_hz": env.unwrapped.config.ctrl_hz}}
         src = tmp_root / DATASET_NAMESPACE / name
@@ -244,17 +241,12 @@ def main(argv: Sequence[str], prog: str = "wt-inspect demos") -> int:
     args = ap.parse_args(list(argv))
     try:
         cfg = DemoConfig.from_json(args.config, "--config")
-        env = json.loads(args.env) if args.env else {}
-        if not isinstance(env, dict):
-            raise ValueError("--env must be a JSON object")
+        env = json_object_option("--env", args.env)
         from .evaluation.registry import check_controller
         check_dataset_name(args.name)   # before anything is imported, built or recorded
         check_out_dir(args.out, "--out")
         check_controller(cfg.expert)
         summary = record_demonstrations(cfg, args.out, args.name, env, progress=not args.no_progress)
-    except json.JSONDecodeError as exc:
-        print(f"{prog}: error: --env is not valid JSON: {exc}", file=sys.stderr)
-        return 2
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2

@@ -97,3 +97,59 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys, argv, match):
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "o" / "results.md").exists()
+
+
+def _fake_seed(run, *, demo_s, evals, dagger_s=500.0, rounds=8):
+    meta = run / "demos" / "wt-inspect" / imitation.DATASET / "wt_inspect_demos.json"
+    meta.parent.mkdir(parents=True)
+    meta.write_text(json.dumps({"config": {}, "wall_time_s": demo_s}))
+    (run / "evaluations.json").write_text(json.dumps(evals))
+    (run / "summary.json").write_text(json.dumps({"wall_time_s": dagger_s, "env_steps": evals[-1]["env_steps"],
+                                                  "rounds_done": rounds, "stopped_by_wall_clock": False}))
+
+
+def _eval(steps, wall, cov, clearance):
+    return {"round": 1, "env_steps": steps, "wall_time_s": wall, "episodes": [],
+            "mean": {"coverage": cov, "safety_sm": cov, "centering_cm": 0.999, "clearance_min_m": clearance}}
+
+
+def test_the_seeds_report_adds_the_recording_to_the_time_to_each_target(tmp_path):
+    # seed 0 meets the mission at 100 s of DAgger but keeps its distance only at 300 s;
+    # seed 1 never keeps it; recording 50 / 70 s
+    _fake_seed(tmp_path / "seed_0", demo_s=50.0,
+               evals=[_eval(1000, 30.0, 0.5, 3.0), _eval(2000, 100.0, 1.0, 2.7), _eval(3000, 300.0, 1.0, 2.95)])
+    _fake_seed(tmp_path / "seed_1", demo_s=70.0, evals=[_eval(1000, 40.0, 1.0, 2.5)])
+    doc = imitation.seeds_document(tmp_path, [0, 1])
+    s0, s1 = doc["seeds"]
+    assert s0["targets"]["mission"]["from_nothing_s"] == 150.0
+    assert s0["targets"]["mission and clearance"]["from_nothing_s"] == 350.0
+    assert s1["targets"]["mission"]["from_nothing_s"] == 110.0
+    assert not s1["targets"]["mission and clearance"]["reached"]
+    assert doc["targets"]["mission and clearance"]["n_reached"] == 1 and doc["targets"]["mission"]["n_reached"] == 2
+    md = imitation.seeds_markdown(tmp_path, doc, "wt-inspect study imitation --seeds 0,1")
+    assert "mission and clearance target: 1 of 2; mission target: 2 of 2" in md
+    assert "| 0 | 0.8 min | 8.3 min | 5.8 min | 2.5 min |" in md
+    assert "| 1 | 1.2 min | 8.3 min | not met | 1.8 min |" in md
+    assert imitation._seed_done(tmp_path / "seed_0", 8) is False          # no results.md: not finished
+    (tmp_path / "seed_0" / "results.md").write_text("x")
+    assert imitation._seed_done(tmp_path / "seed_0", 8) and not imitation._seed_done(tmp_path / "seed_0", 9)
+
+
+@pytest.mark.slow
+def test_seeds_run_each_seed_into_its_folder_with_its_own_demonstrations_and_skip_finished_ones(tmp_path):
+    demos = DemoConfig(winds=["none"], episodes=1, time_limit_s=0.4, full_missions=0)
+    kw = dict(rounds=1, episodes_per_round=1, demo_config=demos, recipe=_tiny_recipe(), hold_seconds=0.2,
+              progress=False, command="wt-inspect study imitation --seeds 0,1")
+    doc = imitation.run_seeds(tmp_path, [0, 1], **kw)
+    assert [r["seed"] for r in doc["seeds"]] == [0, 1]
+    for s in (0, 1):
+        meta = json.loads((tmp_path / f"seed_{s}" / "demos" / "wt-inspect" / imitation.DATASET
+                           / "wt_inspect_demos.json").read_text())
+        assert meta["config"]["seed"] == s and meta["wall_time_s"] > 0
+        assert doc["seeds"][s]["demonstrations_s"] == meta["wall_time_s"] and doc["seeds"][s]["dagger_s"] > 0
+    assert (tmp_path / "learning_curves_seeds.png").is_file()
+    assert json.loads((tmp_path / "seeds.json").read_text()) == json.loads(json.dumps(doc))
+    assert "# DAgger from nothing over 2 seeds" in (tmp_path / "results.md").read_text()
+    stamp = (tmp_path / "seed_1" / "results.md").stat().st_mtime_ns
+    imitation.run_seeds(tmp_path, [0, 1], **kw)
+    assert (tmp_path / "seed_1" / "results.md").stat().st_mtime_ns == stamp

@@ -12,7 +12,8 @@ and explains the outcome::
    ``structure_body``: ``structure_observation``), so that the clone sees the same features as its rollouts.
    ``--seed s`` seeds both the recording (DemoConfig.seed) and DAgger (DAggerConfig.seed): one seed of
    the route from nothing.
-2. DAgger (:func:`agents.dagger.dagger`, recipe ``--recipe``, by default ``agents/recipes/dagger_full.json``) into ``OUT/run/``
+2. DAgger (:func:`agents.dagger.dagger`, recipe ``--recipe``, by default ``agents/recipes/dagger_full.json``)
+   into ``OUT/run/``
    for ``--rounds`` rounds and no wall-clock budget, so that the study is the same on every machine
    however fast (the budget of a training run, ``--max-minutes``, makes its length depend on the
    machine); a rerun resumes after the last finished round.
@@ -23,6 +24,11 @@ and explains the outcome::
 4. The hold check (:mod:`wt_inspect.studies.hold_check`): VT-NMPC+ flying its own decisions held
    like the learner's, so that the decision rate is ruled in or out as the cause.
 
+With ``--seeds 0,1,2,3,4`` each seed's study goes into ``OUT/seed_<s>/`` (finished seeds are skipped,
+an unfinished one resumes), and ``OUT/results.md`` / ``seeds.json`` / ``learning_curves_seeds.png``
+compare the seeds: each one's last evaluation and least clearance, when it first met the full-mission
+target with and without the clearance, and its wall time from nothing (recording + DAgger).
+
 ``OUT/results.md`` gives all of it with the command, and the best round's policy is copied to
 ``OUT/best_model.zip`` (``--controllers ppo:OUT/best_model.zip`` flies it); the dataset, every
 round's model and the aggregated data stay in ``OUT/demos`` and ``OUT/run`` (large; not committed).
@@ -30,6 +36,7 @@ round's model and the aggregated data stay in ``OUT/demos`` and ``OUT/run`` (lar
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -40,6 +47,8 @@ import numpy as np
 from ..demonstrations import DemoConfig
 
 DATASET = "vtnmpc-plus-full-v0"
+#: least clearance an agent must keep without a safety filter: d_min (3 m) less 0.1 m
+CLEARANCE_TARGET_M = 2.9
 #: a label component at least this close to +-1 counts as saturated (the action bounds)
 SATURATED = 0.999
 #: the default length of the hold check [s]
@@ -182,6 +191,105 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     return analysis
 
 
+def seed_targets() -> dict[str, dict[str, float]]:
+    """The targets the seeds report judges, headline first: the full-mission target with the
+    clearance kept without a filter, then the mission target alone."""
+    from agents.seeds import TARGET
+    return {"mission and clearance": {**TARGET, "clearance_min_m": CLEARANCE_TARGET_M}, "mission": dict(TARGET)}
+
+
+def _seed_done(run: Path, rounds: int) -> bool:
+    """A seed's study is finished: its results.md written after ``rounds`` DAgger rounds."""
+    summary = run / "summary.json"
+    return (run / "results.md").is_file() and summary.is_file() and \
+        int(json.loads(summary.read_text()).get("rounds_done", -1)) >= rounds
+
+
+def _demo_seconds(run: Path) -> float | None:
+    """Wall time of the seed's demonstration recording (None: recorded before it was timed)."""
+    meta = run / "demos" / "wt-inspect" / DATASET / "wt_inspect_demos.json"
+    return json.loads(meta.read_text()).get("wall_time_s") if meta.is_file() else None
+
+
+def seeds_document(out: Path, seeds: list[int]) -> dict[str, Any]:
+    """:func:`agents.seeds.seed_report` of the seeds' evaluations under :func:`seed_targets`, with
+    each seed's wall time from nothing: recording, DAgger, and to each target (recording + the DAgger
+    wall time of the first round that met it)."""
+    from agents.seeds import seed_report
+    doc = seed_report(out, seeds, seed_targets())
+    for row in doc["seeds"]:
+        run = out / f"seed_{row['seed']}"
+        demo_s = _demo_seconds(run)
+        summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").is_file() else {}
+        row["demonstrations_s"] = demo_s
+        row["dagger_s"] = summary.get("wall_time_s")
+        row["best"] = summary.get("best_evaluation")
+        for t in row["targets"].values():
+            t["from_nothing_s"] = None if (t["wall_s"] is None or demo_s is None) else round(demo_s + t["wall_s"], 1)
+    return doc
+
+
+def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
+    """OUT/results.md of a seeds run: the seeds table of :func:`agents.seeds.seeds_markdown` and the
+    wall times from nothing."""
+    from agents.seeds import seeds_markdown as table
+
+    def minutes(x: Any) -> str:
+        return "-" if x is None else f"{float(x) / 60:.1f} min"
+
+    names = list(doc["targets"])
+    lines = [f"# DAgger from nothing over {len(doc['seeds'])} seeds", "", f"`{command}`", "",
+             "Each seed's study (demonstrations, DAgger, analysis) is in `seed_<s>/results.md`. Seeds meeting the "
+             + "; ".join(f"{n} target: {doc['targets'][n]['n_reached']} of {len(doc['seeds'])}" for n in names)
+             + ".", "", table(out, doc), "",
+             "Wall time from nothing (one core each): recording the demonstrations, the whole DAgger run, and "
+             "recording plus DAgger up to the first round that met each target:", "",
+             "| seed | demonstrations | DAgger | " + " | ".join(f"to the {n} target" for n in names) + " |",
+             "|---|---:|---:|" + "---:|" * len(names)]
+    for row in doc["seeds"]:
+        lines.append(f"| {row['seed']} | {minutes(row['demonstrations_s'])} | {minutes(row['dagger_s'])} | "
+                     + " | ".join(minutes(row["targets"][n]["from_nothing_s"]) if row["targets"][n]["reached"]
+                                  else "not met" for n in names) + " |")
+    def metres(x: Any) -> str:
+        return "-" if x is None else f"{float(x):.2f} m"
+
+    lines += ["", "The round each seed keeps (`seed_<s>/best_model.zip`: the best evaluation score), as evaluated:", "",
+              "| seed | round | coverage | SM | CM | least clearance | RMS distance error |",
+              "|---|---:|---:|---:|---:|---:|---:|"]
+    for row in doc["seeds"]:
+        best = row.get("best") or {}
+        m = best.get("mean", {})
+        lines.append(f"| {row['seed']} | {best.get('round', '-')} | {_pct(m.get('coverage'))} "
+                     f"| {_pct(m.get('safety_sm'))} | {_pct(m.get('centering_cm'))} "
+                     f"| {metres(m.get('clearance_min_m'))} | {metres(m.get('rms_distance_error_m'))} |")
+    lines += ["", "Figure: `learning_curves_seeds.png` (every round's evaluation per seed, mean and spread).", ""]
+    return "\n".join(lines)
+
+
+def run_seeds(out: str | Path, seeds: list[int], *, rounds: int, progress: bool = True, command: str = "",
+              **study: Any) -> dict[str, Any]:
+    """:func:`run_study` for each seed into ``out/seed_<s>`` (finished ones skipped), then the
+    seeds report (module docstring); returns ``seeds.json``."""
+    from tqdm import tqdm
+
+    from agents.seeds import plot_seed_curves
+    from wt_inspect_env.util.atomic_io import check_out_dir, write_text_atomic
+
+    out = check_out_dir(out, "--out")
+    for s in tqdm(seeds, desc="seeds", unit="seed", disable=not progress, file=sys.stderr):
+        run = out / f"seed_{s}"
+        if not _seed_done(run, rounds):
+            demos = study.get("demo_config")
+            own = {**study, "demo_config": None if demos is None else dataclasses.replace(demos, seed=s)}
+            run_study(run, rounds=rounds, seed=s, progress=progress,
+                      command=f"{command} (seed {s} of the seeds run)", **own)
+    doc = seeds_document(out, seeds)
+    write_text_atomic(out / "seeds.json", json.dumps(doc, indent=1) + "\n")
+    plot_seed_curves(out, seeds, out / "learning_curves_seeds.png", targets=seed_targets())
+    write_text_atomic(out / "results.md", seeds_markdown(out, doc, command))
+    return doc
+
+
 def _shown_path(p: Path) -> str:
     """``p`` relative to the working directory when inside it (results name repository paths)."""
     try:
@@ -198,7 +306,11 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
     ap.add_argument("--episodes-per-round", type=int, default=4)
     ap.add_argument("--demo-config", default=None, help="JSON object of DemoConfig fields (default: its defaults)")
     ap.add_argument("--recipe", default=None, help="DAgger recipe file (default agents/recipes/dagger_full.json)")
-    ap.add_argument("--seed", type=int, default=0, help="seed of the demonstrations and of DAgger (default 0)")
+    seed = ap.add_mutually_exclusive_group()
+    seed.add_argument("--seed", type=int, default=0, help="seed of the demonstrations and of DAgger (default 0)")
+    seed.add_argument("--seeds", default=None,
+                      help="comma-separated seeds, each into OUT/seed_<s>/ (its demonstrations seeded with s, "
+                           "also under --demo-config), and a report over them in OUT")
     ap.add_argument("--hold-seconds", type=float, default=HOLD_SECONDS)
     ap.add_argument("--no-progress", action="store_true")
     args = ap.parse_args(argv)
@@ -207,13 +319,18 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
         if not args.hold_seconds > 0:
             raise ValueError(f"--hold-seconds must be positive, got {args.hold_seconds!r}")
         demo_cfg = DemoConfig.from_json(args.demo_config, "--demo-config") if args.demo_config else None
-        run_study(args.out, rounds=args.rounds, episodes_per_round=args.episodes_per_round, demo_config=demo_cfg,
-                  recipe=args.recipe, seed=args.seed, hold_seconds=args.hold_seconds,
-                  progress=not args.no_progress, command=command)
+        study = dict(rounds=args.rounds, episodes_per_round=args.episodes_per_round, demo_config=demo_cfg,
+                     recipe=args.recipe, hold_seconds=args.hold_seconds, progress=not args.no_progress,
+                     command=command)
+        if args.seeds is not None:
+            from agents.seeds import parse_seeds
+            run_seeds(args.out, parse_seeds(args.seeds), **study)
+        else:
+            run_study(args.out, seed=args.seed, **study)
     except ValueError as exc:
         print(f"{prog}: error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {args.out}/results.md, analysis.json")
+    print(f"wrote {args.out}/results.md, " + ("seeds.json" if args.seeds is not None else "analysis.json"))
     return 0
 
 

@@ -125,6 +125,30 @@ def check_unknown_options(name: str, given: Iterable[str], known: Iterable[str])
         raise ValueError(f"unknown {name} option(s) {unknown}; valid: {sorted(set(known))}")
 
 
+def json_object_option(option: str, text: str | None) -> dict[str, Any]:
+    """The JSON object a command-line ``option`` was given - inline, or the path of a ``.json`` file
+    holding it; None or empty: ``{}``. Anything else is a one-line ValueError naming ``option``
+    (JSON is data: nothing in it runs)."""
+    import json
+    from pathlib import Path
+
+    if not text:
+        return {}
+    src = text
+    if not text.lstrip().startswith("{") and text.endswith(".json"):
+        p = Path(text)
+        if not p.is_file():
+            raise ValueError(f"{option} file {text!r} not found")
+        src = p.read_text()
+    try:
+        data = json.loads(src)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{option} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{option} must be a JSON object, got {_one_line(text)}")
+    return data
+
+
 def _one_line(value: Any) -> str:
     """``repr(value)`` on one line (numpy prints a 2-D array over several)."""
     return " ".join(repr(value).split())
