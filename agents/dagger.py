@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import functools
 import json
 import math
 import os
@@ -81,7 +82,8 @@ class DAggerConfig:
     bc_epochs: passes over the demonstrations for the initial clone. refit_steps: gradient steps per
     round on the aggregate (continuing from the current policy), mini-batches of ``batch_size``
     with ``dagger_share`` of each from the learner-visited states. expert: a registered controller
-    name (plain, no argument). seed: rollouts, mixture draws, network initialisation and batch order.
+    name, with its optional argument if it has one (``vtnmpc-plus:backoff=0.5``, see
+    :func:`expert_factory`). seed: rollouts, mixture draws, network initialisation and batch order.
     """
 
     rounds: int = 8
@@ -106,8 +108,9 @@ class DAggerConfig:
                 raise ValueError(f"dagger {name} must be a number in [0, 1], got {v!r}")
         check_positive("dagger learning_rate", self.learning_rate)
         check_positive("dagger refit_learning_rate", self.refit_learning_rate)
-        if not isinstance(self.expert, str) or not self.expert or ":" in self.expert:
-            raise ValueError(f"dagger expert must be a plain registered controller name, got {self.expert!r}")
+        if not isinstance(self.expert, str) or not self.expert or self.expert.startswith(":"):
+            raise ValueError(f"dagger expert must be a registered controller name (NAME or NAME:ARGUMENT), "
+                             f"got {self.expert!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"dagger seed must be a non-negative integer, got {self.seed!r}")
 
@@ -130,14 +133,27 @@ class DAggerConfig:
 
 def expert_factory(name: str) -> Callable[[Any], Any]:
     """The factory ``env -> policy`` of a registered controller, read from the entry points as the
-    evaluation harness reads them (``agents`` may not import the harness or ``controllers``)."""
+    evaluation harness reads them (``agents`` may not import the harness or ``controllers``):
+    ``NAME`` or, for an entry with an optional argument, ``NAME:ARGUMENT`` (e.g. a tightened
+    expert, ``vtnmpc-plus:backoff=0.5``), the argument checked here."""
     found = {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
-    if name not in found:
+    key, sep, arg = str(name).partition(":")
+    if key not in found:
         raise ValueError(f"dagger expert {name!r} is not a registered controller; valid: {', '.join(sorted(found))}")
-    entry = found[name].load()
+    entry = found[key].load()
     if not isinstance(entry, PolicyEntry) or entry.takes_argument:
-        raise ValueError(f"dagger expert {name!r} must be a controller without an argument")
-    return entry.factory
+        raise ValueError(f"dagger expert {name!r} must be a controller that needs no argument (not a model file)")
+    if not sep:
+        return entry.factory
+    if not entry.optional_argument:
+        raise ValueError(f"dagger expert {name!r}: {key!r} takes no argument")
+    if entry.check is not None:
+        entry.check(arg)
+    return functools.partial(_with_argument, entry.factory, arg)
+
+
+def _with_argument(factory: Callable[..., Any], arg: str, env: Any) -> Any:
+    return factory(env, arg)
 
 
 class ShadowExpert:

@@ -32,7 +32,9 @@ the later tuning for ``vtnmpc-later``), checked before any run and fingerprinted
 a changed file is a different run when an evaluation resumes. ``wt-inspect tune`` writes such files.
 The argument may instead (or also, joined by ``:``) set ``damping=X``, a Levenberg-Marquardt damping
 of the real-time iteration (:func:`damped_solver`): ``vtnmpc:damping=1``,
-``pampc:weights=best.json:damping=1``.
+``pampc:weights=best.json:damping=1``; and, for the entries that keep d_min, ``backoff=M``: the OCP
+keeps d_min + M [m] instead of d_min + d_ref / 70 (``clearance_backoff``) - a tightened expert whose
+imitator, tracking it with decimetres of error, still keeps d_min (``vtnmpc-plus:backoff=0.5``).
 
 The VT-NMPC keeps its 0.01 s shooting interval at any control rate (``control_dt`` is the
 environment's period), as the paper's 200 Hz loop ran a 30 x 0.01 s horizon.
@@ -47,9 +49,11 @@ from typing import Any, Callable
 
 from wt_inspect_env.policy import PolicyEntry
 
-MPC_ARGUMENT = "weights=FILE|damping=X[:...]"
+MPC_ARGUMENT = "weights=FILE|damping=X|backoff=M[:...]"
 #: the options an MPC entry's argument may set (``OPTION=VALUE`` parts joined by ``:``)
-MPC_OPTIONS = ("weights", "damping")
+MPC_OPTIONS = ("weights", "damping", "backoff")
+#: the options whose value is a number >= 0
+_NUMERIC_OPTIONS = ("damping", "backoff")
 
 
 def _weights_class(kind: str) -> tuple[type, Any]:
@@ -71,10 +75,10 @@ def _weights_class(kind: str) -> tuple[type, Any]:
 
 
 def parse_mpc_argument(arg: str) -> dict[str, str]:
-    """``{"weights": FILE, "damping": X}`` (either or both) from an MPC entry's argument
-    ``weights=FILE``, ``damping=X`` or ``weights=FILE:damping=X``; one-line ValueError naming the
-    bad part otherwise (unknown option, repeated option, missing value, a damping that is not a
-    finite number >= 0)."""
+    """``{"weights": FILE, "damping": X, "backoff": M}`` (any of them) from an MPC entry's argument
+    ``weights=FILE``, ``damping=X``, ``backoff=M`` or several joined by ``:``; one-line ValueError
+    naming the bad part otherwise (unknown option, repeated option, missing value, a damping or
+    back-off that is not a finite number >= 0)."""
     out: dict[str, str] = {}
     for part in arg.split(":"):
         key, sep, value = part.partition("=")
@@ -86,13 +90,13 @@ def parse_mpc_argument(arg: str) -> dict[str, str]:
             raise ValueError(f"unknown MPC option {key!r} in argument {arg!r}; valid: {', '.join(MPC_OPTIONS)}")
         if key in out:
             raise ValueError(f"MPC option {key!r} given twice in argument {arg!r}")
-        if key == "damping":
+        if key in _NUMERIC_OPTIONS:
             try:
                 x = float(value)
             except ValueError:
                 x = float("nan")
             if not math.isfinite(x) or x < 0:
-                raise ValueError(f"damping must be a finite number >= 0, got {value!r}")
+                raise ValueError(f"{key} must be a finite number >= 0, got {value!r}")
         out[key] = value
     return out
 
@@ -115,10 +119,16 @@ def damped_solver(damping: float) -> Any:
     return default_solver(regularization=float(damping))
 
 
-def mpc_options(kind: str, arg: str) -> dict[str, Any]:
-    """The policy options of an MPC entry's argument (see :func:`parse_mpc_argument`)."""
+def mpc_options(kind: str, arg: str, clearance: bool = True) -> dict[str, Any]:
+    """The policy options of an MPC entry's argument (see :func:`parse_mpc_argument`);
+    ``clearance``: whether the entry keeps d_min (``backoff`` is refused by one that does not)."""
     parts = parse_mpc_argument(arg)
     options: dict[str, Any] = {}
+    if "backoff" in parts:
+        if not clearance:
+            raise ValueError(f"backoff={parts['backoff']} needs the clearance constraint, which this "
+                             f"{kind!r} entry (the authors' variant) does not have")
+        options["clearance_backoff"] = float(parts["backoff"])
     if "weights" in parts:
         options["weights"] = load_entry_weights(kind, parts["weights"])
     if "damping" in parts:
@@ -132,17 +142,21 @@ def mpc_label(arg: str) -> str:
     shown = [Path(parts["weights"]).stem] if "weights" in parts else []
     if "damping" in parts:
         shown.append(f"damping {parts['damping']}")
+    if "backoff" in parts:
+        shown.append(f"backoff {parts['backoff']} m")
     return ", ".join(shown)
 
 
-def _weights_entry(kind: str, build: Callable[..., Any], description: str, display_name: str) -> PolicyEntry:
+def _weights_entry(kind: str, build: Callable[..., Any], description: str, display_name: str,
+                   clearance: bool = True) -> PolicyEntry:
     """An MPC entry that works plain (its own weights, undamped) or with the argument
-    ``weights=FILE``, ``damping=X`` or both (:func:`parse_mpc_argument`)."""
+    ``weights=FILE``, ``damping=X``, ``backoff=M`` (with ``clearance``: it keeps d_min) or several
+    (:func:`parse_mpc_argument`)."""
     def factory(env: Any, arg: str | None = None) -> Any:
-        return build(env) if arg is None else build(env, **mpc_options(kind, arg))
+        return build(env) if arg is None else build(env, **mpc_options(kind, arg, clearance))
 
     def check(arg: str) -> None:
-        mpc_options(kind, arg)
+        mpc_options(kind, arg, clearance)
 
     def fingerprint(arg: str) -> str:   # the weights' values, not the file's name or layout
         parts = parse_mpc_argument(arg)
@@ -153,6 +167,8 @@ def _weights_entry(kind: str, build: Callable[..., Any], description: str, displ
             out.append("weights=" + hashlib.sha256(data.encode()).hexdigest()[:16])
         if "damping" in parts:
             out.append(f"damping={float(parts['damping'])!r}")
+        if "backoff" in parts:
+            out.append(f"backoff={float(parts['backoff'])!r}")
         return ":".join(out)
 
     return PolicyEntry(factory, description, display_name=display_name,
@@ -221,9 +237,9 @@ def _pampc_authors_policy(env: Any, **options: Any) -> Any:
 
 nmpc_authors = _weights_entry("nmpc-authors", _nmpc_authors_policy,
                               "NMPC as the authors ran it: quaternion yaw reference that flips sign at 360 deg wraps",
-                              "NMPC (authors' yaw bug)")
+                              "NMPC (authors' yaw bug)", clearance=False)
 pampc_authors = _weights_entry("pampc", _pampc_authors_policy, "PAMPC as the authors ran it: camera axis body up",
-                               "PAMPC (authors' camera axis)")
+                               "PAMPC (authors' camera axis)", clearance=False)
 
 
 def safety_filter(env: Any, policy: Any) -> Any:

@@ -180,7 +180,9 @@ def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
         # in the 4 m/s gust): a change to the expert, the plant or the mission shows; one to the
         # learner's own code (cloning, DAgger) does not - nothing short of the study itself flies that
         from .evaluation import sweep_specs
-        return [StudyRun("evaluate", s) for s in sweep_specs("paper", ["vtnmpc-plus"], [4.0], [0])]
+        args = list(argv[1:])
+        expert = args[args.index("--expert") + 1] if "--expert" in args[:-1] else "vtnmpc-plus"
+        return [StudyRun("evaluate", s) for s in sweep_specs("paper", [expert], [4.0], [0])]
     return []
 
 

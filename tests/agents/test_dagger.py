@@ -189,3 +189,26 @@ def test_bad_dagger_input_is_one_line_exit_2(tiny_dataset, tmp_path, capsys):
     assert not (tmp_path / "y").exists()
     assert train_main(["--algo", "dagger", "--out", str(tmp_path / "z")]) == 2
     assert "needs --dataset" in capsys.readouterr().err
+
+
+def test_the_expert_may_carry_its_argument_checked_before_anything_flies():
+    """``vtnmpc-plus:backoff=0.5``: a tightened expert (the OCP keeps d_min + 0.5 m) to imitate;
+    a bad argument or an argument to an entry that takes none is a one-line error."""
+    import gymnasium as gym
+
+    from agents.dagger import DAggerConfig, expert_factory
+    assert DAggerConfig(expert="vtnmpc-plus:backoff=0.5").expert == "vtnmpc-plus:backoff=0.5"
+    for name, match in [("vtnmpc-plus:backoff=-1", "backoff must be a finite number >= 0"),
+                        ("nmpc-authors:backoff=0.5", "needs the clearance constraint"),
+                        ("nope:backoff=1", "is not a registered controller"),
+                        ("ppo", "needs no argument")]:
+        with pytest.raises(ValueError, match=match):
+            expert_factory(name)
+    with pytest.raises(ValueError, match="NAME or NAME:ARGUMENT"):
+        DAggerConfig(expert=":backoff=1")
+    env = gym.make("WindTurbineInspection-v0", task="full")
+    try:
+        policy = expert_factory("vtnmpc-plus:backoff=0.5")(env.unwrapped)
+        assert policy.config.clearance_backoff == 0.5 and policy.clearance_active
+    finally:
+        env.close()

@@ -77,7 +77,7 @@ def test_registry_accepts_weights_argument_and_fingerprints_the_values(tmp_path)
     c = _write(tmp_path, {"heading": 101.0}, "c.json")
     roi = _write(tmp_path, {"roi": 1.0}, "roi.json")             # a VT-NMPC field the PAMPC does not have
     registry.check_controller(f"vtnmpc:weights={a}")
-    assert "vtnmpc[:weights=FILE|damping=X[:...]]" in registry.valid_names()
+    assert "vtnmpc[:weights=FILE|damping=X|backoff=M[:...]]" in registry.valid_names()
     fp = registry.fingerprint
     assert fp(f"vtnmpc:weights={a}") == fp(f"vtnmpc:weights={b}") != fp(f"vtnmpc:weights={c}")
     assert fp(f"vtnmpc:weights={a}") != fp(f"nmpc:weights={a}") and fp("vtnmpc") == "vtnmpc"
@@ -119,6 +119,36 @@ def test_damping_builds_the_controller_with_only_the_regularization_changed():
         damped = registry.resolve("nmpc:damping=0.25")(env.unwrapped).config.solver
         assert plain.regularization == 0.0 and damped.regularization == 0.25
         assert dataclasses.replace(damped, regularization=0.0) == plain
+    finally:
+        env.close()
+
+
+def test_backoff_tightens_the_clearance_the_mpc_keeps_and_only_that():
+    """``backoff=M`` sets ``clearance_backoff`` (the OCP keeps d_min + M: a tightened expert to
+    imitate), is fingerprinted and named, and is refused by the authors' variants, which keep no
+    clearance at all."""
+    import dataclasses
+
+    import gymnasium as gym
+
+    import wt_inspect_env  # noqa: F401 - registers the env ids
+    fp = registry.fingerprint
+    assert fp("vtnmpc-plus:backoff=0.5") == fp("vtnmpc-plus:backoff=0.50") != fp("vtnmpc-plus:backoff=0.4")
+    assert registry.display_name("vtnmpc-plus:backoff=0.5") == "VT-NMPC+ (backoff 0.5 m)"
+    for name, msg in [("nmpc-authors:backoff=0.5", "needs the clearance constraint"),
+                      ("pampc-authors:backoff=0.5", "needs the clearance constraint"),
+                      ("vtnmpc:backoff=-0.1", "backoff must be a finite number >= 0, got '-0.1'")]:
+        with pytest.raises(ValueError, match=msg):
+            registry.check_controller(name)
+    env = gym.make("WindTurbineInspection-v0", task="full")
+    try:
+        plain = registry.resolve("vtnmpc-plus")(env.unwrapped)
+        tight = registry.resolve("vtnmpc-plus:backoff=0.5")(env.unwrapped)
+        assert plain.clearance_active and tight.clearance_active
+        assert plain.config.clearance_backoff == pytest.approx(7.0 / 70.0) and tight.config.clearance_backoff == 0.5
+        assert dataclasses.replace(tight.config, clearance_backoff=plain.config.clearance_backoff) == plain.config
+        with pytest.raises(ValueError, match="d_min \\+ clearance_backoff must be below d_ref"):
+            registry.resolve("vtnmpc-plus:backoff=4")(env.unwrapped)
     finally:
         env.close()
 

@@ -147,11 +147,12 @@ def markdown(summary: Mapping[str, Any], labels: Mapping[str, Mapping[str, Any]]
 
 
 def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo_config: Any = None,
-              recipe: Any = None, seed: int = 0, hold_seconds: float = HOLD_SECONDS,
+              recipe: Any = None, seed: int = 0, expert: str | None = None, hold_seconds: float = HOLD_SECONDS,
               progress: bool = True, command: str = "") -> dict[str, Any]:
     """The whole study into ``out`` (module docstring); returns the analysis. ``recipe``: a recipe
     file (default ``agents/recipes/dagger_full.json``) or a ``Recipe``; ``seed`` seeds DAgger and, unless
-    ``demo_config`` is given, the demonstrations."""
+    ``demo_config`` is given, the demonstrations; ``expert``: the controller that demonstrates and
+    labels (default VT-NMPC+; it replaces ``demo_config``'s)."""
     from agents.dagger import DAggerConfig, dagger
     from agents.interface import needed_env_options
     from agents.recipe import RECIPE_DIR, load_recipe
@@ -162,13 +163,16 @@ def run_study(out: str | Path, *, rounds: int, episodes_per_round: int = 4, demo
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"--seed must be a non-negative integer, got {seed!r}")
     out = check_out_dir(out, "--out")
-    cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round, seed=seed)
+    cfg = DAggerConfig(rounds=rounds, episodes_per_round=episodes_per_round, seed=seed,
+                       **({} if expert is None else {"expert": expert}))
     if recipe is None or isinstance(recipe, (str, Path)):
         recipe_path = Path(recipe) if recipe is not None else RECIPE_DIR / "dagger_full.json"
         rec, recipe_name = load_recipe(recipe_path), _shown_path(recipe_path)
     else:                                       # a Recipe built in code (tests, notebooks)
         rec, recipe_name = recipe, "(a recipe given in code)"
     demo_cfg = demo_config if demo_config is not None else DemoConfig(seed=seed)
+    if expert is not None:
+        demo_cfg = dataclasses.replace(demo_cfg, expert=expert)
     dataset = ensure_demonstrations(out, demo_cfg, progress, needed_env_options(rec.spec.features.groups))
     run = out / "run"
     summary = dagger(dataset, run, recipe=rec, task="full", config=cfg, progress=progress)
@@ -306,6 +310,9 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
     ap.add_argument("--episodes-per-round", type=int, default=4)
     ap.add_argument("--demo-config", default=None, help="JSON object of DemoConfig fields (default: its defaults)")
     ap.add_argument("--recipe", default=None, help="DAgger recipe file (default agents/recipes/dagger_full.json)")
+    ap.add_argument("--expert", default=None,
+                    help="registered controller that demonstrates and labels, with its argument if any "
+                         "(default vtnmpc-plus; e.g. vtnmpc-plus:backoff=0.5, a tightened clearance)")
     seed = ap.add_mutually_exclusive_group()
     seed.add_argument("--seed", type=int, default=0, help="seed of the demonstrations and of DAgger (default 0)")
     seed.add_argument("--seeds", default=None,
@@ -320,7 +327,8 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
             raise ValueError(f"--hold-seconds must be positive, got {args.hold_seconds!r}")
         demo_cfg = DemoConfig.from_json(args.demo_config, "--demo-config") if args.demo_config else None
         study = dict(rounds=args.rounds, episodes_per_round=args.episodes_per_round, demo_config=demo_cfg,
-                     recipe=args.recipe, hold_seconds=args.hold_seconds, progress=not args.no_progress,
+                     recipe=args.recipe, expert=args.expert, hold_seconds=args.hold_seconds,
+                     progress=not args.no_progress,
                      command=command)
         if args.seeds is not None:
             from agents.seeds import parse_seeds
