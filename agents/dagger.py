@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import csv
 import dataclasses
-import functools
 import json
 import math
 import os
@@ -149,11 +148,7 @@ def expert_factory(name: str) -> Callable[[Any], Any]:
         raise ValueError(f"dagger expert {name!r}: {key!r} takes no argument")
     if entry.check is not None:
         entry.check(arg)
-    return functools.partial(_with_argument, entry.factory, arg)
-
-
-def _with_argument(factory: Callable[..., Any], arg: str, env: Any) -> Any:
-    return factory(env, arg)
+    return entry.with_argument(arg)
 
 
 class ShadowExpert:

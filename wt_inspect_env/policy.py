@@ -15,6 +15,7 @@ importing it by name.
 """
 from __future__ import annotations
 
+import functools
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, Callable, Mapping
@@ -163,8 +164,17 @@ class PolicyEntry:
     label: Callable[[str], str] | None = None
     env_options: Callable[[str], Mapping[str, Any]] | None = None
 
+    def with_argument(self, arg: str, **trust: bool) -> Callable[[Any], Any]:
+        """The factory ``env -> policy`` of ``NAME:arg`` (``trust``: the ``trust_model`` keyword of an
+        entry with ``trust_option``); a partial of a module function, so it pickles to worker processes."""
+        return functools.partial(_build_with_argument, self.factory, arg, dict(trust))
+
     def __post_init__(self) -> None:
         if not callable(self.factory):
             raise ValueError(f"PolicyEntry.factory must be callable, got {self.factory!r}")
         if not isinstance(self.description, str) or not self.description:
             raise ValueError(f"PolicyEntry.description must be a non-empty string, got {self.description!r}")
+
+
+def _build_with_argument(factory: Callable[..., Any], arg: str, trust: Mapping[str, bool], env: Any) -> Any:
+    return factory(env, arg, **trust)

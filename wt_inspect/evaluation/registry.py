@@ -199,12 +199,8 @@ def resolve(name: str, *, trust_model: bool = False) -> PolicyFactory:
         factory = entry.factory
     else:
         trust = _trust(entry, trust_model)
-        factory = functools.partial(_with_argument, entry.factory, arg, trust)
+        factory = entry.with_argument(arg, **trust)
     return functools.partial(_filtered, factory) if filtered else factory
-
-
-def _with_argument(factory: Callable[..., Any], arg: str, trust: Mapping[str, bool], env: Any) -> Any:
-    return factory(env, arg, **trust)
 
 
 def _filtered(factory: PolicyFactory, env: Any) -> Any:
