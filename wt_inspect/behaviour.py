@@ -179,9 +179,10 @@ def _study_runs(argv: Sequence[str]) -> list[StudyRun]:
         # the expert it imitates on the mission of its evaluations and hold check (the paper mission
         # in the 4 m/s gust): a change to the expert, the plant or the mission shows; one to the
         # learner's own code (cloning, DAgger) does not - nothing short of the study itself flies that
+        from .demonstrations import DemoConfig
         from .evaluation import sweep_specs
-        args = list(argv[1:])
-        expert = args[args.index("--expert") + 1] if "--expert" in args[:-1] else "vtnmpc-plus"
+        from .studies.imitation import build_parser
+        expert = build_parser().parse_args(list(argv[1:])).expert or DemoConfig.expert
         return [StudyRun("evaluate", s) for s in sweep_specs("paper", [expert], [4.0], [0])]
     return []
 

@@ -77,6 +77,8 @@ def test_the_runs_of_a_study_are_planned_from_its_commands():
         ("evaluate", "vtnmpc-plus", "paper", 4.0)]
     tight = behaviour.digested_runs(["wt-inspect study imitation --out x --expert vtnmpc-plus:backoff=0.5 --seeds 0,1"])
     assert [r.spec.controller for r in tight] == ["vtnmpc-plus:backoff=0.5"]
+    assert [r.spec.controller for r in behaviour.digested_runs(
+        ["wt-inspect study imitation --out x --expert=nmpc --rounds 2"])] == ["nmpc"]   # read by the study's parser
     # commands that fly nothing have no digest; the first and the last run carry it
     assert behaviour.digested_runs(["wt-inspect study sm-vs-wind --results results"]) == []
     assert [r.spec.controller for r in behaviour.digested_runs(

@@ -302,8 +302,8 @@ def _shown_path(p: Path) -> str:
         return str(p)
 
 
-def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation") -> int:
-    """``wt-inspect study imitation``: run (or resume) the study given by ``argv``; returns the exit code."""
+def build_parser(prog: str = "wt-inspect study imitation") -> argparse.ArgumentParser:
+    """The command line of the study (also how the behaviour digest reads a manifest command)."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--out", required=True)
     ap.add_argument("--rounds", type=int, default=3, help="DAgger rounds after behaviour cloning (default 3)")
@@ -320,7 +320,12 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation"
                            "also under --demo-config), and a report over them in OUT")
     ap.add_argument("--hold-seconds", type=float, default=HOLD_SECONDS)
     ap.add_argument("--no-progress", action="store_true")
-    args = ap.parse_args(argv)
+    return ap
+
+
+def main(argv: list[str] | None = None, prog: str = "wt-inspect study imitation") -> int:
+    """``wt-inspect study imitation``: run (or resume) the study given by ``argv``; returns the exit code."""
+    args = build_parser(prog).parse_args(argv)
     command = " ".join(["wt-inspect study imitation", *(argv if argv is not None else sys.argv[1:])])
     try:
         if not args.hold_seconds > 0:
