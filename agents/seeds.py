@@ -277,6 +277,12 @@ def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> b
     return all(m.get(k, -math.inf) >= v for k, v in target.items())
 
 
+def measured(entry: Mapping[str, Any], target: Mapping[str, float]) -> bool:
+    """Whether an evaluation entry recorded every metric of ``target`` (a target no evaluation
+    measured is reported as not measured, not as missed)."""
+    return all(k in entry["mean"] for k in target)
+
+
 def seed_report(out: Path, seeds: Sequence[int],
                 targets: Mapping[str, Mapping[str, float]] | None = None,
                 base: Mapping[Any, Any] | None = None) -> dict[str, Any]:
@@ -298,7 +304,7 @@ def seed_report(out: Path, seeds: Sequence[int],
                                "targets": {}}
         for name, target in targets.items():
             hit = next((e for e in evals if reached(e, target)), None)
-            row["targets"][name] = {"reached": hit is not None,
+            row["targets"][name] = {"reached": hit is not None, "measured": any(measured(e, target) for e in evals),
                                     "env_steps": None if hit is None else hit["env_steps"],
                                     "wall_s": None if hit is None else hit["wall_time_s"],
                                     "stage_env_steps": None if hit is None else hit["env_steps"] - own["env_steps"],
@@ -343,8 +349,9 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any]) -> str:
                        for e in last.get("episodes", [])})
         status = ("running" if found is None else "finished" if _summary_finished(found) else "unfinished (clock)")
         least = mean.get("clearance_min_m")
+        head = row["targets"].get(doc.get("target_name"), {})
         met = (f"{_steps(row['reached_at_env_steps'])} steps, {row['reached_at_wall_s'] / 60:.1f} min"
-               if row["reached_target"] else "not met")
+               if row["reached_target"] else "not met" if head.get("measured", True) else "not measured")
         lines.append(f"| {row['seed']} | {_steps(summary.get('env_steps', last.get('env_steps', 0)))} "
                      f"| {summary.get('wall_time_s', last.get('wall_time_s', 0.0)) / 60:.1f} min | {status} "
                      f"| {_pct(mean.get('coverage'))} | {_pct(mean.get('safety_sm'))} "

@@ -68,8 +68,8 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
     assert doc["target_name"] == "recipe" and doc["n_reached"] == 2
     assert [r["reached_at_env_steps"] for r in doc["seeds"]] == [1000, 2000]
     assert doc["targets"]["mission"]["n_reached"] == 1
-    assert doc["seeds"][0]["targets"]["mission"] == {"reached": True, "env_steps": 2000, "wall_s": 2.0,
-                                                     "stage_env_steps": 2000, "stage_wall_s": 2.0}
+    assert doc["seeds"][0]["targets"]["mission"] == {"reached": True, "measured": True, "env_steps": 2000,
+                                                     "wall_s": 2.0, "stage_env_steps": 2000, "stage_wall_s": 2.0}
     # a fine-tune stage's evaluations count the base model's steps: the stage columns subtract them
     staged = seed_report(tmp_path, [0, 1], targets, base={"env_steps": 500, "wall_time_s": 0.5})
     assert staged["seeds"][0]["targets"]["recipe"]["stage_env_steps"] == 500
@@ -87,6 +87,13 @@ def test_seed_report_judges_the_recipe_target_first_and_the_mission_target_besid
     mission = seeds_markdown(tmp_path, seed_report(tmp_path, [0, 1], {"mission": TARGET}))
     assert "mission target met at" in mission and mission.count("| not met |") == 1
     assert rows[1].startswith("| 0 | 2,000 | 0.0 min | running |")   # no summary.json yet: its last evaluation's steps
+    # a target on a metric no evaluation recorded (the clearance of an env that does not observe the
+    # structure) is not measured - not missed
+    unmeasured = seed_report(tmp_path, [0, 1], {"clearance": {**TARGET, "clearance_min_m": 2.9}})
+    assert unmeasured["n_reached"] == 0
+    assert [r["targets"]["clearance"]["measured"] for r in unmeasured["seeds"]] == [False, False]
+    table = seeds_markdown(tmp_path, unmeasured)
+    assert table.count("| not measured |") == 2 and "| not met |" not in table
 
 
 @pytest.mark.parametrize("bad, match", [({"coverage": 1.5}, "recipe target coverage must be a fraction"),

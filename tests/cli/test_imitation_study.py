@@ -130,6 +130,17 @@ def test_the_seeds_report_adds_the_recording_to_the_time_to_each_target(tmp_path
     assert "mission and clearance target: 1 of 2; mission target: 2 of 2" in md
     assert "| 0 | 0.8 min | 8.3 min | 5.8 min | 2.5 min |" in md
     assert "| 1 | 1.2 min | 8.3 min | not met | 1.8 min |" in md
+    # evaluations on an env that does not observe the structure record no clearance: that target
+    # is reported as not measured, not as missed
+    for s in (0, 1):
+        path = tmp_path / f"seed_{s}" / "evaluations.json"
+        evals = json.loads(path.read_text())
+        for e in evals:
+            del e["mean"]["clearance_min_m"]
+        path.write_text(json.dumps(evals))
+    md = imitation.seeds_markdown(tmp_path, imitation.seeds_document(tmp_path, [0, 1]), "wt-inspect study imitation")
+    assert "mission and clearance target: not measured" in md and "mission target: 2 of 2" in md
+    assert "| 1 | 1.2 min | 8.3 min | not measured | 1.8 min |" in md
     assert imitation._seed_done(tmp_path / "seed_0", 8) is False          # no results.md: not finished
     (tmp_path / "seed_0" / "results.md").write_text("x")
     assert imitation._seed_done(tmp_path / "seed_0", 8) and not imitation._seed_done(tmp_path / "seed_0", 9)
