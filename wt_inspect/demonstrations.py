@@ -38,7 +38,13 @@ import numpy as np
 import wt_inspect_env
 from wt_inspect_env.task.env_config import TASKS, check_start_noise
 from wt_inspect_env.util.atomic_io import check_out_dir
-from wt_inspect_env.util.validation import check_choice, check_finite, check_positive, json_object_option
+from wt_inspect_env.util.validation import (
+    check_choice,
+    check_finite,
+    check_positive,
+    check_unknown_options,
+    json_object_option,
+)
 
 DATASET_NAMESPACE = "wt-inspect"
 
@@ -84,10 +90,7 @@ class DemoConfig:
         """The config from a JSON object of its fields, inline or in a ``.json`` file (None or empty:
         the defaults); a one-line ValueError naming ``option`` for anything else or an unknown field."""
         fields = json_object_option(option, text)
-        unknown = sorted(set(fields) - set(cls.__dataclass_fields__))
-        if unknown:
-            raise ValueError(f"{option}: unknown demo config field(s) {unknown}; "
-                             f"valid: {sorted(cls.__dataclass_fields__)}")
+        check_unknown_options(f"{option} demo config", fields, cls.__dataclass_fields__)
         return cls(**fields)
 
 

@@ -112,7 +112,8 @@ def test_bad_demo_input(tmp_path, tiny_dataset, capsys):
     with pytest.raises(ValueError, match="exists already"):
         record_demonstrations(DemoConfig(episodes=1, full_missions=0), tiny_dataset[0].parent.parent, "tiny-v0")
     assert demos_main(["--out", str(tmp_path), "--config", '{"epsiodes": 1}']) == 2
-    assert "unknown demo config field" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "unknown --config demo config option(s) ['epsiodes']" in err and "'episodes'" in err
     assert demos_main(["--out", str(tmp_path), "--config", '{"expert": "nope"}']) == 2
     with pytest.raises(ValueError, match="not a wt-inspect Minari dataset"):
         load_demonstrations(tmp_path)
