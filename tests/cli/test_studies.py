@@ -99,3 +99,25 @@ def test_hold_check_runs_from_another_directory(tmp_path):
     last = json.loads(res.stdout.strip().splitlines()[-1])
     assert set(last) == {"4", "1"} and last["4"]["flight_s"] == pytest.approx(0.2, abs=0.011)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_hold_check_in_strong_wind_reports_clearance_and_saturated_decisions():
+    from wt_inspect.studies import hold_check
+    out = hold_check.run(0.3, (2,), wind=7.0, expert="vtnmpc-plus:backoff=0.5")
+    row = out[2]
+    assert row["flight_s"] == pytest.approx(0.3, abs=0.011) and row["termination"] is None
+    # the mission starts on the stand-off pose, 7 m from the blade, far from d_min (3 m)
+    assert 5.0 < row["least_clearance_m"] < 9.0
+    assert len(row["saturated_share"]) == 4 and all(0.0 <= v <= 1.0 for v in row["saturated_share"])
+
+
+@pytest.mark.parametrize("argv, match", [(["--holds", "4,x"], "--holds must be comma-separated"),
+                                         (["--holds", "0"], "--holds must be positive"),
+                                         (["--wind", "-1"], "--wind must be a non-negative"),
+                                         (["--expert", "nope"], "is not a registered controller")])
+def test_hold_check_refuses_bad_input_naming_it(argv, match, capsys):
+    from wt_inspect.studies import hold_check
+    with pytest.raises(SystemExit) as exc:
+        hold_check.main(["--seconds", "0.1", *argv])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and match in err and "Traceback" not in err

@@ -2,16 +2,22 @@
 
 The expert's action is converted to the learner's action space (``agents.imitation.invert_action``
 with the ``dagger_full`` recipe's spec), held for ``k`` control steps and decoded through the
-agent's residual-hover action at every step, on the full mission in the paper's 4 m/s gust, for
-``k`` = 4 (25 Hz, the learner's rate) and 1 (every step). Prints one line per ``k`` and the JSON of
-both (quoted in ``results/imitation/dagger``)::
+agent's residual-hover action at every step, on the full mission in the paper's gust (4 m/s unless
+``--wind``), for ``k`` = 4 (25 Hz, the learner's rate) and 1 (every step) unless ``--holds``. Prints
+one line per ``k`` and the JSON of all (quoted in the imitation study's report)::
 
     wt-inspect study hold-check --seconds 12
+    wt-inspect study hold-check --seconds 150 --wind 7 --holds 4,2,1 --expert vtnmpc-plus:backoff=0.5
+
+Besides the mission metrics each ``k`` reports the least clearance to the structure and the share
+of the held decisions at the action bounds per component [p, q, r, thrust]: a held loop that
+oscillates shows as saturated labels, which a learner deciding at that rate has to copy.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 
 import numpy as np
@@ -19,8 +25,11 @@ import numpy as np
 HOLDS = (4, 1)
 
 
-def run(seconds: float, holds: tuple[int, ...] = HOLDS) -> dict[int, dict]:
-    """Per hold ``k``: flight time, termination, coverage, SM, CM and RMS distance error."""
+def run(seconds: float, holds: tuple[int, ...] = HOLDS, *, wind: float = 4.0,
+        expert: str = "vtnmpc-plus") -> dict[int, dict]:
+    """Per hold ``k``: flight time, termination, coverage, SM, CM, RMS distance error, least
+    clearance and the share of held decisions at the bounds, flown by ``expert`` (a registered
+    controller, with its argument if any) in the paper's gust of mean ``wind`` [m/s]."""
     import gymnasium as gym
 
     import wt_inspect_env  # noqa: F401 - registers the env ids
@@ -29,33 +38,47 @@ def run(seconds: float, holds: tuple[int, ...] = HOLDS) -> dict[int, dict]:
     from agents.recipe import RECIPE_DIR, load_recipe
     from agents.wrappers import ResidualHoverAction
 
+    from .imitation import SATURATED
+
+    for k in holds:
+        if isinstance(k, bool) or not isinstance(k, int) or k < 1:
+            raise ValueError(f"--holds must be positive integers, got {k!r}")
+    factory = expert_factory(expert)            # a bad expert fails here, before anything flies
     rec = load_recipe(RECIPE_DIR / "dagger_full.json")
-    env = gym.make("WindTurbineInspection-v0", wind={"type": "gust", "mean_speed": 4.0}, time_limit_s=seconds)
+    env = gym.make("WindTurbineInspection-v0", wind={"type": "gust", "mean_speed": float(wind)},
+                   time_limit_s=seconds, structure_observation=True)
     out: dict[int, dict] = {}
     try:
         u = env.unwrapped
-        expert = ShadowExpert(expert_factory("vtnmpc-plus")(u))
+        shadow = ShadowExpert(factory(u))
         dec = ResidualHoverAction(rec.spec.action, u.scaling)
         for k in holds:
             obs, info = env.reset(seed=0)
-            expert.reset(0)
+            shadow.reset(0)
             held = None
+            decisions: list[np.ndarray] = []
+            least = float(obs["structure"][3])
             t = 0
             while True:
-                a = expert.label(obs)
+                a = shadow.label(obs)
                 q = np.asarray(obs["quaternion"], float)
                 if t % k == 0:
                     held = invert_action(rec.spec, u.scaling, a[None], q[None])[0]
+                    decisions.append(held)
                 applied = dec(held, q)
-                expert.applied(applied)
+                shadow.applied(applied)
                 obs, _, term, trunc, info = env.step(applied)
+                least = min(least, float(obs["structure"][3]))
                 t += 1
                 if term or trunc:
                     break
             m = info["metrics"]
+            at_bounds = (np.abs(np.asarray(decisions)) >= SATURATED).mean(axis=0)
             out[k] = {"flight_s": round(float(info["time"]), 2), "termination": info["termination"],
                       **{x: round(float(m[x]), 4)
-                         for x in ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m")}}
+                         for x in ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m")},
+                      "least_clearance_m": round(least, 3),
+                      "saturated_share": [round(float(v), 4) for v in at_bounds]}
     finally:
         env.close()
     return out
@@ -65,10 +88,24 @@ def main(argv: list[str] | None = None, prog: str = "wt-inspect study hold-check
     """``wt-inspect study hold-check``: run the check given by ``argv``; returns the exit code."""
     ap = argparse.ArgumentParser(prog=prog, description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=30.0, help="seconds of flight from the mission start")
+    ap.add_argument("--wind", type=float, default=4.0, help="mean speed of the paper's gust [m/s] (default 4)")
+    ap.add_argument("--holds", default=",".join(map(str, HOLDS)),
+                    help="comma-separated hold lengths k in control steps (default 4,1)")
+    ap.add_argument("--expert", default="vtnmpc-plus",
+                    help="registered controller, with its argument if any (default vtnmpc-plus)")
     args = ap.parse_args(argv)
     if not args.seconds > 0:
         ap.error(f"--seconds must be positive, got {args.seconds!r}")
-    out = run(args.seconds)
+    if not (math.isfinite(args.wind) and args.wind >= 0):
+        ap.error(f"--wind must be a non-negative speed, got {args.wind!r}")
+    try:
+        holds = tuple(int(x) for x in args.holds.split(","))
+    except ValueError:
+        ap.error(f"--holds must be comma-separated positive integers, got {args.holds!r}")
+    try:
+        out = run(args.seconds, holds, wind=args.wind, expert=args.expert)
+    except ValueError as exc:                   # a bad hold or expert, named
+        ap.error(str(exc))
     for k, row in out.items():
         print(k, row, flush=True)
     print(json.dumps(out))
