@@ -140,6 +140,8 @@ def test_the_seeds_report_adds_the_recording_to_the_time_to_each_target(tmp_path
         path.write_text(json.dumps(evals))
     md = imitation.seeds_markdown(tmp_path, imitation.seeds_document(tmp_path, [0, 1]), "wt-inspect study imitation")
     assert "mission and clearance target: not measured" in md and "mission target: 2 of 2" in md
+    one = imitation.seeds_markdown(tmp_path, imitation.seeds_document(tmp_path, [0]), "wt-inspect study imitation")
+    assert one.startswith("# DAgger from nothing over 1 seed\n")
     assert "| 1 | 1.2 min | 8.3 min | not measured | 1.8 min |" in md
     assert imitation._seed_done(tmp_path / "seed_0", 8) is False          # no results.md: not finished
     (tmp_path / "seed_0" / "results.md").write_text("x")

@@ -242,7 +242,8 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
         return "-" if x is None else f"{float(x) / 60:.1f} min"
 
     names = list(doc["targets"])
-    lines = [f"# DAgger from nothing over {len(doc['seeds'])} seeds", "", f"`{command}`", "",
+    n = len(doc["seeds"])
+    lines = [f"# DAgger from nothing over {n} seed{'' if n == 1 else 's'}", "", f"`{command}`", "",
              "Each seed's study (demonstrations, DAgger, analysis) is in `seed_<s>/results.md`. Seeds meeting the "
              + "; ".join(f"{n} target: {doc['targets'][n]['n_reached']} of {len(doc['seeds'])}"
                          if any(r["targets"][n].get("measured", True) for r in doc["seeds"])
