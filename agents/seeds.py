@@ -283,6 +283,12 @@ def measured(entry: Mapping[str, Any], target: Mapping[str, float]) -> bool:
     return all(k in entry["mean"] for k in target)
 
 
+def missed(result: Mapping[str, Any]) -> str:
+    """How a report names a target a seed did not reach (its ``targets`` entry of :func:`seed_report`):
+    "not met", or "not measured" when no evaluation recorded the target's metrics."""
+    return "not met" if result.get("measured", True) else "not measured"
+
+
 def seed_report(out: Path, seeds: Sequence[int],
                 targets: Mapping[str, Mapping[str, float]] | None = None,
                 base: Mapping[Any, Any] | None = None) -> dict[str, Any]:
@@ -349,9 +355,8 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any]) -> str:
                        for e in last.get("episodes", [])})
         status = ("running" if found is None else "finished" if _summary_finished(found) else "unfinished (clock)")
         least = mean.get("clearance_min_m")
-        head = row["targets"].get(doc.get("target_name"), {})
         met = (f"{_steps(row['reached_at_env_steps'])} steps, {row['reached_at_wall_s'] / 60:.1f} min"
-               if row["reached_target"] else "not met" if head.get("measured", True) else "not measured")
+               if row["reached_target"] else missed(row["targets"].get(doc.get("target_name"), {})))
         lines.append(f"| {row['seed']} | {_steps(summary.get('env_steps', last.get('env_steps', 0)))} "
                      f"| {summary.get('wall_time_s', last.get('wall_time_s', 0.0)) / 60:.1f} min | {status} "
                      f"| {_pct(mean.get('coverage'))} | {_pct(mean.get('safety_sm'))} "

@@ -19,10 +19,23 @@ import argparse
 import json
 import math
 import sys
+from typing import Any
 
 import numpy as np
 
 HOLDS = (4, 1)
+#: an action component at least this close to +-1 counts as saturated (the action bounds)
+SATURATED = 0.999
+
+
+def label_stats(Y: np.ndarray) -> dict[str, Any]:
+    """Samples, per-component standard deviation and share at the bounds of agent actions ``Y``
+    (n, 4) - the expert's labels in the imitation study, its held decisions here."""
+    Y = np.asarray(Y, dtype=np.float64).reshape(-1, 4)
+    if len(Y) == 0:
+        return {"samples": 0, "label_std": [None] * 4, "saturated_share": [None] * 4}
+    return {"samples": int(len(Y)), "label_std": [round(float(s), 4) for s in Y.std(axis=0)],
+            "saturated_share": [round(float(s), 4) for s in (np.abs(Y) >= SATURATED).mean(axis=0)]}
 
 
 def run(seconds: float, holds: tuple[int, ...] = HOLDS, *, wind: float = 4.0,
@@ -37,8 +50,6 @@ def run(seconds: float, holds: tuple[int, ...] = HOLDS, *, wind: float = 4.0,
     from agents.imitation import invert_action
     from agents.recipe import RECIPE_DIR, load_recipe
     from agents.wrappers import ResidualHoverAction
-
-    from .imitation import SATURATED
 
     for k in holds:
         if isinstance(k, bool) or not isinstance(k, int) or k < 1:
@@ -73,12 +84,11 @@ def run(seconds: float, holds: tuple[int, ...] = HOLDS, *, wind: float = 4.0,
                 if term or trunc:
                     break
             m = info["metrics"]
-            at_bounds = (np.abs(np.asarray(decisions)) >= SATURATED).mean(axis=0)
             out[k] = {"flight_s": round(float(info["time"]), 2), "termination": info["termination"],
                       **{x: round(float(m[x]), 4)
                          for x in ("coverage", "safety_sm", "centering_cm", "rms_distance_error_m")},
                       "least_clearance_m": round(least, 3),
-                      "saturated_share": [round(float(v), 4) for v in at_bounds]}
+                      "saturated_share": label_stats(np.asarray(decisions))["saturated_share"]}
     finally:
         env.close()
     return out

@@ -45,23 +45,13 @@ from typing import Any, Mapping
 import numpy as np
 
 from ..demonstrations import DemoConfig
+from .hold_check import label_stats
 
 DATASET = "vtnmpc-plus-full-v0"
 #: least clearance an agent must keep without a safety filter: d_min (3 m) less 0.1 m
 CLEARANCE_TARGET_M = 2.9
-#: a label component at least this close to +-1 counts as saturated (the action bounds)
-SATURATED = 0.999
 #: the default length of the hold check [s]
 HOLD_SECONDS = 12.0
-
-
-def label_stats(Y: np.ndarray) -> dict[str, Any]:
-    """Samples, per-component standard deviation and share at the bounds of labels ``Y`` (n, 4)."""
-    Y = np.asarray(Y, dtype=np.float64).reshape(-1, 4)
-    if len(Y) == 0:
-        return {"samples": 0, "label_std": [None] * 4, "saturated_share": [None] * 4}
-    return {"samples": int(len(Y)), "label_std": [round(float(s), 4) for s in Y.std(axis=0)],
-            "saturated_share": [round(float(s), 4) for s in (np.abs(Y) >= SATURATED).mean(axis=0)]}
 
 
 def labels_by_source(run: Path, per_round: list[Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
@@ -236,6 +226,7 @@ def seeds_document(out: Path, seeds: list[int]) -> dict[str, Any]:
 def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
     """OUT/results.md of a seeds run: the seeds table of :func:`agents.seeds.seeds_markdown` and the
     wall times from nothing."""
+    from agents.seeds import missed
     from agents.seeds import seeds_markdown as table
 
     def minutes(x: Any) -> str:
@@ -258,8 +249,7 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
     for row in doc["seeds"]:
         lines.append(f"| {row['seed']} | {minutes(row['demonstrations_s'])} | {minutes(row['dagger_s'])} | "
                      + " | ".join(minutes(row["targets"][n]["from_nothing_s"]) if row["targets"][n]["reached"]
-                                  else "not met" if row["targets"][n].get("measured", True) else "not measured"
-                                  for n in names) + " |")
+                                  else missed(row["targets"][n]) for n in names) + " |")
     def metres(x: Any) -> str:
         return "-" if x is None else f"{float(x):.2f} m"
 
