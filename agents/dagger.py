@@ -282,9 +282,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
     from .training import (
         EVAL_SEED_BASE,
         _policy_from_model,
+        evaluate_on_envs,
         make_raw_env,
-        run_episode,
-        summarize_episodes,
     )
 
     cfg = config if config is not None else DAggerConfig()
@@ -307,13 +306,15 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
             raise ValueError(f"--out {str(out)!r} holds a DAgger run with other settings (dagger_state.json); "
                              "use another --out or the same arguments (only rounds may grow)")
     dataset, meta = load_demonstrations(dataset_path)
-    eval_env = make_raw_env(task, recipe.eval_env_options())
+    eval_envs = [make_raw_env(task, options) for options in recipe.eval_options_list()]
+    eval_env = eval_envs[0]
     t_start = time.perf_counter()
     wall_before = float(state["wall_time_s"]) if state else 0.0
     deadline = None if max_minutes is None else 60.0 * max_minutes
     envs: dict[int, Any] = {}
     try:
-        check_dataset_matches(meta, eval_env)
+        for env in eval_envs:
+            check_dataset_matches(meta, env)
         spec = recipe.spec
         u = eval_env.unwrapped
         out.mkdir(parents=True, exist_ok=True)
@@ -359,9 +360,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
 
         def evaluate(round_: int, beta: float, extra: Mapping[str, Any]) -> dict[str, Any]:
             t = time.perf_counter()
-            policy = _policy_from_model(model, spec, vecnorm, eval_env)
             seeds = [EVAL_SEED_BASE + i for i in range(recipe.eval_episodes)]
-            result = summarize_episodes([run_episode(policy, eval_env, s) for s in seeds])
+            result = evaluate_on_envs(lambda env: _policy_from_model(model, spec, vecnorm, env), eval_envs, seeds)
             entry = {"round": round_, "beta": beta, "env_steps": env_steps, "wall_time_s": round(wall(), 2),
                      "eval_time_s": round(time.perf_counter() - t, 2), **dict(extra), **result}
             evaluations.append(entry)
@@ -370,7 +370,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
             ep0 = result["episodes"][0]
             print(f"[dagger] round {round_} beta={beta:.3f} env_steps={env_steps} wall={wall():.0f}s "
                   f"coverage={mm['coverage']:.3f} SM={mm['safety_sm']:.3f} CM={mm['centering_cm']:.3f} "
-                  f"flight={mm['flight_time_s']:.1f}s ({ep0['termination'] or 'complete'})",
+                  f"flight={mm['flight_time_s']:.1f}s ({ep0['termination'] or 'complete'}) "
+                  f"score={result['score']:.3f}",
                   file=sys.stderr, flush=True)
             return entry
 
@@ -450,7 +451,8 @@ def dagger(dataset_path: str | Path, out: str | Path, *, recipe, task: str = "fu
         bar.close()
         venv.close()
     finally:
-        eval_env.close()
+        for env in eval_envs:
+            env.close()
         for env, _ in envs.values():
             env.close()
     best = max(evaluations, key=lambda e: e["score"])

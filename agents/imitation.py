@@ -197,9 +197,11 @@ def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: 
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {str(out)!r} exists and is not a directory")
     dataset, meta = load_demonstrations(dataset_path)
-    raw = make_raw_env(task, recipe.eval_env_options())
+    evals = [make_raw_env(task, options) for options in recipe.eval_options_list()]
+    raw = evals[0]
     try:
-        check_dataset_matches(meta, raw)
+        for env in evals:
+            check_dataset_matches(meta, env)
         u = raw.unwrapped
         t0 = time.perf_counter()
         X, Y = dataset_arrays(dataset, recipe.spec, u.scaling, standoff=u.config.standoff, dt=u.dt)
@@ -253,11 +255,10 @@ def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: 
         summary["model"] = str(path)
         if evaluate:
             from .policy import load_sb3_policy
-            from .training import EVAL_SEED_BASE, run_episode, summarize_episodes
+            from .training import EVAL_SEED_BASE, evaluate_on_envs
             t2 = time.perf_counter()
-            policy = load_sb3_policy("ppo", path, raw)
             seeds = [EVAL_SEED_BASE + i for i in range(recipe.eval_episodes)]
-            result = summarize_episodes([run_episode(policy, raw, s) for s in seeds])
+            result = evaluate_on_envs(lambda env: load_sb3_policy("ppo", path, env), evals, seeds)
             entry = {"env_steps": 0, "wall_time_s": round(prep_s + fit_s, 1),
                      "eval_time_s": round(time.perf_counter() - t2, 1), **result}
             write_text_atomic(out / "evaluations.json", json.dumps([entry], indent=1))
@@ -265,5 +266,6 @@ def behaviour_clone(dataset_path: str | Path, out: str | Path, *, recipe, task: 
         write_text_atomic(out / "bc_summary.json", json.dumps(summary, indent=1))
         venv.close()
     finally:
-        raw.close()
+        for env in evals:
+            env.close()
     return summary

@@ -71,8 +71,12 @@ class Recipe:
 
     env: ``gym.make`` options for the training envs (``task`` comes from the command line).
     eval_env: options overriding ``env`` for the periodic evaluation (e.g. no start noise, the full
-        mission length). env_variants: option dicts merged over ``env``, one drawn per training
-        episode (weights ``env_variant_weights``, default equal) - e.g. several wind speeds.
+        mission length). eval_variants: option dicts merged over the evaluation's options, each flown
+        by every evaluation (``eval_episodes`` each) and the evaluation scored by the worst of them -
+        so the kept model is one that does the task in every listed condition (e.g. calm air and the
+        7 m/s gust), not the best in one; empty (default): the evaluation options alone.
+    env_variants: option dicts merged over ``env``, one drawn per training episode (weights
+        ``env_variant_weights``, default equal) - e.g. several wind speeds.
         agent: :class:`AgentSpec` fields. shaping: training-only reward shaping
         (:class:`~agents.wrappers.ShapingConfig`). normalize: VecNormalize switches.
     algo_kwargs: keyword arguments of the stable-baselines3 algorithm; ``learning_rate_final``
@@ -96,6 +100,7 @@ class Recipe:
     description: str = ""
     env: dict = field(default_factory=dict)
     eval_env: dict = field(default_factory=dict)
+    eval_variants: list = field(default_factory=list)
     env_variants: list = field(default_factory=list)
     env_variant_weights: Any = None
     agent: Any = field(default_factory=AgentSpec)
@@ -128,6 +133,14 @@ class Recipe:
                 raise ValueError(f"recipe env_variants[{i}] must not set 'task'")
             _check_env_options({**dict(self.env), **dict(v)})
         object.__setattr__(self, "env_variants", [dict(v) for v in self.env_variants])
+        if (not isinstance(self.eval_variants, (list, tuple))
+                or not all(isinstance(v, Mapping) for v in self.eval_variants)):
+            raise ValueError(f"recipe eval_variants must be a list of dicts, got {self.eval_variants!r}")
+        for i, v in enumerate(self.eval_variants):
+            if "task" in v:
+                raise ValueError(f"recipe eval_variants[{i}] must not set 'task'")
+            _check_env_options({**self.eval_env_options(), **dict(v)})
+        object.__setattr__(self, "eval_variants", [dict(v) for v in self.eval_variants])
         w = self.env_variant_weights
         if w is not None:
             if not isinstance(w, (list, tuple)) or len(w) != len(self.env_variants):
@@ -182,6 +195,12 @@ class Recipe:
         """The env options of the periodic evaluation: ``env`` with ``eval_env`` over it."""
         return {**dict(self.env), **dict(self.eval_env)}
 
+    def eval_options_list(self) -> list[dict]:
+        """The env options of every env an evaluation flies: :meth:`eval_env_options` with each of
+        ``eval_variants`` over it, or those options alone when there are none."""
+        base = self.eval_env_options()
+        return [{**base, **v} for v in self.eval_variants] or [base]
+
     def to_dict(self) -> dict[str, Any]:
         """The recipe as plain JSON data (for the model's sidecar and the run's files)."""
         d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
@@ -189,6 +208,8 @@ class Recipe:
         d["shaping"] = dataclasses.asdict(self.shaping)
         if d["turbines"] is None:      # absent as before the option: older runs' recipes and digests stay equal
             del d["turbines"]
+        if not d["eval_variants"]:     # likewise
+            del d["eval_variants"]
         return json.loads(json.dumps(d))
 
     @classmethod

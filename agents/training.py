@@ -179,6 +179,27 @@ def summarize_episodes(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     return {"mean": mean, "score": score, "episodes": episodes}
 
 
+def evaluate_on_envs(make_policy: Callable[[gym.Env], Any], envs: Sequence[gym.Env],
+                     seeds: Sequence[int]) -> dict[str, Any]:
+    """Episodes on every env of ``envs`` (one per seed each; the policy ``make_policy(env)``) summarised.
+
+    With one env this is :func:`summarize_episodes` of its episodes. With several (a recipe's
+    ``eval_variants``), ``mean`` is over all their episodes (each marked with its ``eval_variant``),
+    ``variants`` holds each env's own summary, and ``score`` is the *worst* env's score: a model is
+    kept for doing the task in every condition, not for the average of one good and one bad.
+    """
+    parts = []
+    for env in envs:
+        policy = make_policy(env)
+        parts.append(summarize_episodes([run_episode(policy, env, int(s)) for s in seeds]))
+    if len(parts) == 1:
+        return parts[0]
+    result = summarize_episodes([{**e, "eval_variant": i} for i, p in enumerate(parts) for e in p["episodes"]])
+    result["score"] = min(p["score"] for p in parts)
+    result["variants"] = [{"mean": p["mean"], "score": p["score"]} for p in parts]
+    return result
+
+
 def episode_score(episode: Mapping[str, Any]) -> float:
     """What the best model is chosen by: ``min(coverage, SM)``, and when the episode recorded its
     least clearance (the env observes the structure), also that clearance as a share of d_min - a
@@ -276,7 +297,7 @@ class TrainingRun:
         self.evaluations: list[dict[str, Any]] = _read_json_list(out / "evaluations.json")
         self.best_score = max((e["score"] for e in self.evaluations), default=-math.inf)
         self.eval_time = 0.0
-        self._eval_env = None
+        self._eval_envs: list[gym.Env] = []
         self._episodes_path = out / "episodes.csv"
 
     def elapsed(self) -> float:
@@ -287,11 +308,18 @@ class TrainingRun:
         """Seconds of wall time of the whole training, earlier runs it resumes included."""
         return self.wall_before + self.elapsed()
 
+    def eval_envs(self) -> list[gym.Env]:
+        """The raw envs the periodic evaluation flies, one per evaluation variant of the recipe
+        (made on first use, then kept)."""
+        if not self._eval_envs:
+            for options in self.recipe.eval_options_list():
+                self._eval_envs.append(make_raw_env(self.task, options))
+        return self._eval_envs
+
     def interface_env(self) -> gym.Env:
-        """The single raw env the periodic evaluation flies (made on first use, then kept)."""
-        if self._eval_env is None:
-            self._eval_env = make_raw_env(self.task, self.recipe.eval_env_options())
-        return self._eval_env
+        """The raw env whose interface (scaling, stand-off, step) a saved model records: the first
+        evaluation env (the variants differ in conditions such as the wind, not in the interface)."""
+        return self.eval_envs()[0]
 
     def record_episode(self, info: Mapping[str, Any], logger) -> None:
         """Log one finished training episode's return and metrics (to ``logger`` and the run's record)."""
@@ -316,10 +344,9 @@ class TrainingRun:
     def evaluate(self, model, logger=None) -> dict[str, Any]:
         """Evaluate ``model`` deterministically on the evaluation seeds; returns the summary (logged if ``logger``)."""
         t = time.perf_counter()
-        env = self.interface_env()
-        policy = _policy_from_model(model, self.spec, self.vecnormalize, env)
         seeds = [EVAL_SEED_BASE + i for i in range(self.recipe.eval_episodes)]
-        result = summarize_episodes([run_episode(policy, env, s) for s in seeds])
+        result = evaluate_on_envs(lambda env: _policy_from_model(model, self.spec, self.vecnormalize, env),
+                                  self.eval_envs(), seeds)
         dt = time.perf_counter() - t
         self.eval_time += dt
         entry = {"env_steps": self.env_steps, "wall_time_s": round(self.wall_time(), 2),
@@ -360,10 +387,10 @@ class TrainingRun:
         return self.save(model, self.out / "checkpoints" / f"ckpt_{self.env_steps}")
 
     def close(self) -> None:
-        """Close the evaluation env, if one was made."""
-        if self._eval_env is not None:
-            self._eval_env.close()
-            self._eval_env = None
+        """Close the evaluation envs, if any were made."""
+        for env in self._eval_envs:
+            env.close()
+        self._eval_envs = []
 
 
 def _read_json_list(path: Path) -> list:

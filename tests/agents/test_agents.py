@@ -331,6 +331,24 @@ def test_shipped_recipes_load_and_bad_keys_list_valid_ones(tmp_path):
         Recipe.from_dict({**data, "env_variants": [{"wind": {"type": "gust", "mean_sped": 3}}]})
     with pytest.raises(ValueError, match="env_variant_weights"):
         Recipe.from_dict({**data, "env_variants": [{"wind": "none"}], "env_variant_weights": [1.0, 2.0]})
+    with pytest.raises(ValueError, match="mean_sped"):
+        Recipe.from_dict({**data, "eval_variants": [{"wind": {"type": "gust", "mean_sped": 3}}]})
+    with pytest.raises(ValueError, match=r"eval_variants\[0\] must not set 'task'"):
+        Recipe.from_dict({**data, "eval_variants": [{"task": "full"}]})
+    with pytest.raises(ValueError, match="eval_variants must be a list of dicts"):
+        Recipe.from_dict({**data, "eval_variants": {"wind": "none"}})
+
+
+def test_eval_variants_merge_over_the_evaluation_options_and_are_absent_from_old_recipes():
+    rec = load_recipe("agents/recipes/dagger_full_gusty.json")
+    assert rec.eval_options_list() == [rec.eval_env_options()] and "eval_variants" not in rec.to_dict()
+    d = rec.to_dict()
+    d["eval_variants"] = [{"wind": "none"}, {}]
+    two = Recipe.from_dict(d)
+    calm, gust = two.eval_options_list()
+    assert calm == {**rec.eval_env_options(), "wind": "none"} and gust == rec.eval_env_options()
+    assert calm["structure_observation"] is True          # the evaluation's other options are kept
+    assert Recipe.from_dict(two.to_dict()) == two
 
 
 # ------------------------------------------------------------------------------------------ names

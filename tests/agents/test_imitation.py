@@ -20,7 +20,7 @@ from agents.imitation import (  # noqa: E402
     invert_action,
     load_demonstrations,
 )
-from agents.recipe import load_recipe  # noqa: E402
+from agents.recipe import Recipe, load_recipe  # noqa: E402
 from agents.wrappers import AgentSpec, FeatureEncoder, ResidualHoverAction  # noqa: E402
 from wt_inspect.demonstrations import DemoConfig, record_demonstrations  # noqa: E402
 from wt_inspect.demonstrations import main as demos_main
@@ -96,6 +96,24 @@ def test_behaviour_cloning_fits_and_saves_a_loadable_agent(tiny_dataset, tmp_pat
         obs, *_ = env.step(policy.act(obs))
     assert json.loads((tmp_path / "bc" / "bc_summary.json").read_text())["samples"] == summary["samples"]
     env.close()
+
+
+def test_evaluation_variants_fly_each_condition_and_keep_the_worst_score(tiny_dataset, tmp_path):
+    """A recipe's eval_variants: every evaluation flies each variant, and its score is the worst
+    variant's (a model is kept for doing the task in every condition, not on average)."""
+    path, _ = tiny_dataset
+    d = load_recipe(RECIPE).to_dict()
+    d["eval_env"] = {"start_noise": 0.0, "time_limit_s": 0.3}
+    d["eval_variants"] = [{"time_limit_s": 0.3}, {"time_limit_s": 1.5, "wind": "none"}]
+    rec = Recipe.from_dict(d)
+    behaviour_clone(path, tmp_path / "bc", recipe=rec, config=BCConfig(epochs=2, batch_size=32), progress=False)
+    (entry,) = json.loads((tmp_path / "bc" / "evaluations.json").read_text())
+    short, long_ = entry["variants"]
+    assert [e["eval_variant"] for e in entry["episodes"]] == [0] * rec.eval_episodes + [1] * rec.eval_episodes
+    assert short["mean"]["flight_time_s"] < 0.5 < long_["mean"]["flight_time_s"]
+    assert short["score"] != long_["score"] and entry["score"] == min(short["score"], long_["score"])
+    assert entry["mean"]["flight_time_s"] == pytest.approx((short["mean"]["flight_time_s"]
+                                                            + long_["mean"]["flight_time_s"]) / 2)
 
 
 def test_dataset_for_another_standoff_is_refused(tiny_dataset):
