@@ -125,22 +125,8 @@ class Recipe:
             if "task" in opts:
                 raise ValueError(f"recipe {name} must not set 'task' (it comes from --task)")
             _check_env_options({**dict(self.env), **opts})
-        if (not isinstance(self.env_variants, (list, tuple))
-                or not all(isinstance(v, Mapping) for v in self.env_variants)):
-            raise ValueError(f"recipe env_variants must be a list of dicts, got {self.env_variants!r}")
-        for i, v in enumerate(self.env_variants):
-            if "task" in v:
-                raise ValueError(f"recipe env_variants[{i}] must not set 'task'")
-            _check_env_options({**dict(self.env), **dict(v)})
-        object.__setattr__(self, "env_variants", [dict(v) for v in self.env_variants])
-        if (not isinstance(self.eval_variants, (list, tuple))
-                or not all(isinstance(v, Mapping) for v in self.eval_variants)):
-            raise ValueError(f"recipe eval_variants must be a list of dicts, got {self.eval_variants!r}")
-        for i, v in enumerate(self.eval_variants):
-            if "task" in v:
-                raise ValueError(f"recipe eval_variants[{i}] must not set 'task'")
-            _check_env_options({**self.eval_env_options(), **dict(v)})
-        object.__setattr__(self, "eval_variants", [dict(v) for v in self.eval_variants])
+        self._set_variants("env_variants", dict(self.env))
+        self._set_variants("eval_variants", self.eval_env_options())
         w = self.env_variant_weights
         if w is not None:
             if not isinstance(w, (list, tuple)) or len(w) != len(self.env_variants):
@@ -185,6 +171,18 @@ class Recipe:
                 object.__setattr__(self, "turbines", json.loads(json.dumps(dict(self.turbines))))
             except TypeError:
                 raise ValueError(f"recipe turbines must be plain JSON data, got {self.turbines!r}") from None
+
+    def _set_variants(self, name: str, base: dict) -> None:
+        """Check the list of option dicts ``name`` (each merged over ``base`` must be valid env
+        options, none sets the task) and store it as plain dicts."""
+        variants = getattr(self, name)
+        if not isinstance(variants, (list, tuple)) or not all(isinstance(v, Mapping) for v in variants):
+            raise ValueError(f"recipe {name} must be a list of dicts, got {variants!r}")
+        for i, v in enumerate(variants):
+            if "task" in v:
+                raise ValueError(f"recipe {name}[{i}] must not set 'task'")
+            _check_env_options({**base, **dict(v)})
+        object.__setattr__(self, name, [dict(v) for v in variants])
 
     @property
     def spec(self) -> AgentSpec:
