@@ -272,15 +272,21 @@ def clone_seeds(seeds: Sequence[int], dataset: str | Path, out: str | Path, *, r
 def reached(entry: Mapping[str, Any], target: Mapping[str, float] = TARGET) -> bool:
     """Whether an evaluation entry's mean metrics reach every value of ``target`` (metric -> minimum;
     a metric the evaluation did not record, e.g. the clearance of an env that does not observe the
-    structure, is not reached)."""
-    m = entry["mean"]
-    return all(m.get(k, -math.inf) >= v for k, v in target.items())
+    structure, is not reached). An evaluation of several conditions (a recipe's ``eval_variants``)
+    reaches it only when each condition's means do - their mean over all conditions could hide one
+    that misses."""
+    return all(m.get(k, -math.inf) >= v for m in _means(entry) for k, v in target.items())
 
 
 def measured(entry: Mapping[str, Any], target: Mapping[str, float]) -> bool:
     """Whether an evaluation entry recorded every metric of ``target`` (a target no evaluation
     measured is reported as not measured, not as missed)."""
-    return all(k in entry["mean"] for k in target)
+    return all(k in m for m in _means(entry) for k in target)
+
+
+def _means(entry: Mapping[str, Any]) -> list[Mapping[str, Any]]:
+    """The means an evaluation entry is judged by: each condition's when it flew several, else its own."""
+    return [v["mean"] for v in entry.get("variants", ())] or [entry["mean"]]
 
 
 def missed(result: Mapping[str, Any]) -> str:

@@ -10,7 +10,7 @@ pytest.importorskip("stable_baselines3")
 
 from agents.recipe import Recipe, default_recipe_path  # noqa: E402
 from agents.safe_load import resolve_model_path, shipped_models  # noqa: E402
-from agents.seeds import parse_seeds, reached, seed_report, train_seeds  # noqa: E402
+from agents.seeds import measured, parse_seeds, reached, seed_report, train_seeds  # noqa: E402
 
 
 def _tiny_recipe_file(tmp_path):
@@ -115,6 +115,13 @@ def test_a_clearance_target_needs_the_recorded_clearance_and_the_best_model_pays
     assert reached({"mean": {"coverage": 1.0, "clearance_min_m": 2.95}}, target)
     assert not reached({"mean": {"coverage": 1.0, "clearance_min_m": 2.5}}, target)
     assert not reached({"mean": {"coverage": 1.0}}, target)          # not recorded: not met
+    # several conditions (eval_variants): each must reach it, their mean over conditions does not count
+    calm, gust = {"coverage": 1.0, "safety_sm": 0.997}, {"coverage": 1.0, "safety_sm": 0.983}
+    both = {"mean": {"coverage": 1.0, "safety_sm": 0.990}, "variants": [{"mean": calm}, {"mean": gust}]}
+    sm = {"coverage": 0.99, "safety_sm": 0.99}
+    assert reached({"mean": both["mean"]}, sm) and not reached(both, sm)
+    assert reached({**both, "variants": [{"mean": calm}, {"mean": calm}]}, sm)
+    assert not measured({**both, "variants": [{"mean": calm}, {"mean": {"coverage": 1.0}}]}, sm)
     close = {"coverage": 1.0, "safety_sm": 0.995, "clearance_min_m": 2.4, "d_min_m": 3.0}
     clear = {"coverage": 1.0, "safety_sm": 0.96, "clearance_min_m": 3.1, "d_min_m": 3.0}
     assert episode_score(close) == pytest.approx(0.8) and episode_score(clear) == pytest.approx(0.96)
