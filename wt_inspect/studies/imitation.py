@@ -233,10 +233,10 @@ def seeds_markdown(out: Path, doc: Mapping[str, Any], command: str) -> str:
         return "-" if x is None else f"{float(x) / 60:.1f} min"
 
     names = list(doc["targets"])
-    n = len(doc["seeds"])
-    lines = [f"# DAgger from nothing over {n} seed{'' if n == 1 else 's'}", "", f"`{command}`", "",
+    count = len(doc["seeds"])
+    lines = [f"# DAgger from nothing over {count} seed{'' if count == 1 else 's'}", "", f"`{command}`", "",
              "Each seed's study (demonstrations, DAgger, analysis) is in `seed_<s>/results.md`. Seeds meeting the "
-             + "; ".join(f"{n} target: {doc['targets'][n]['n_reached']} of {len(doc['seeds'])}"
+             + "; ".join(f"{n} target: {doc['targets'][n]['n_reached']} of {count}"
                          if any(r["targets"][n].get("measured", True) for r in doc["seeds"])
                          else f"{n} target: not measured (the recipe's evaluation env does not observe the "
                               f"structure, so its evaluations record no clearance; the flown evaluations of the "
